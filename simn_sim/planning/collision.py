@@ -1,0 +1,350 @@
+"""2-D collision model built from the map's obstacle points.
+
+The SIMN map stores labelled 3-D points per local frame. For a ground robot, an obstacle is any
+obstacle-labelled point inside the robot's height band ``[z_min, z_max]``; it is projected to the
+floor plane and inflated by the robot radius. Unknown space (cells no point has been seen in)
+counts as free, so plans are optimistic and the caller replans as the map grows.
+
+Representation: an occupancy grid (``resolution`` metres per cell, axis-aligned in the common
+planning frame, x-y metres) plus, for every cell, the index of the nearest occupied cell, from a
+Euclidean distance transform (``scipy.ndimage.distance_transform_edt``). The clearance of a query
+point ``q`` is the distance from ``q`` to the centre of the occupied cell nearest to ``q``'s
+cell, capped at ``max_clearance``; a point is free when its clearance exceeds
+``robot_radius + margin``. Obstacles are thus quantised to cell centres (an error of at most
+``resolution / sqrt(2)``, which ``margin`` can absorb). Point checks are O(1) gathers and segment
+checks sample every segment at ``<= resolution / 2`` in one vectorised call.
+
+Updates are incremental: new obstacle points can only lower distances, so an update recomputes the
+transform only in a window around the new cells (padded by ``max_clearance``) and merges it with
+``min``. The grid grows (in whole cells, so old indices shift by an integer offset) when points
+land outside its extent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import ndimage
+
+from simn_sim.config import Config, require
+from simn_sim.geometry.se3 import transform_points
+
+
+@dataclasses.dataclass(frozen=True)
+class CollisionConfig(Config):
+    """Collision model parameters (metres)."""
+
+    resolution: float = 0.05
+    """Grid cell size."""
+    robot_radius: float = 0.25
+    """Radius of the robot's footprint disk."""
+    margin: float = 0.0
+    """Extra inflation on top of ``robot_radius`` (e.g. to absorb quantisation or drift)."""
+    z_min: float = 0.05
+    """Lowest point height (planning frame z, up) that can hit the robot."""
+    z_max: float = 1.5
+    """Highest point height that can hit the robot."""
+    obstacle_labels: tuple[int, ...] = (1,)
+    """Semantic labels that count as obstacles (everything else, e.g. floor = 0, is ignored)."""
+    max_clearance: float = 2.0
+    """Clearance values are capped here; the incremental update window is padded by it."""
+    grow_padding: float = 2.5
+    """When the grid must grow, it grows by this much beyond the new points (at least
+    ``max_clearance + resolution``, so that space outside the grid is beyond the cap)."""
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(math.isfinite(self.resolution) and self.resolution > 0, n, "resolution", "> 0")
+        require(self.resolution <= 0.5, n, "resolution", "<= 0.5 m (coarser is meaningless)")
+        require(
+            math.isfinite(self.robot_radius) and self.robot_radius >= 0, n, "robot_radius", ">= 0"
+        )
+        require(math.isfinite(self.margin) and self.margin >= 0, n, "margin", ">= 0")
+        require(math.isfinite(self.z_min) and math.isfinite(self.z_max), n, "z_min", "finite")
+        require(self.z_max > self.z_min, n, "z_max", "must exceed z_min")
+        require(
+            self.max_clearance > self.robot_radius + self.margin,
+            n,
+            "max_clearance",
+            "must exceed robot_radius + margin",
+        )
+        require(self.grow_padding >= 0, n, "grow_padding", ">= 0")
+
+    @property
+    def inflation(self) -> float:
+        """Total inflation radius: ``robot_radius + margin``."""
+        return self.robot_radius + self.margin
+
+
+def _as_points(points: np.ndarray, name: str) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim == 1 and p.shape[0] in (2, 3):
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] not in (2, 3):
+        raise ValueError(f"{name}: expected an (N, 2) or (N, 3) array, got shape {p.shape}")
+    return p
+
+
+class CollisionChecker:
+    """Occupancy grid + distance transform of projected obstacle points (planning frame x-y).
+
+    Attributes after :meth:`update` (read-only by convention):
+        origin: (2,) x-y of the lower corner of cell (0, 0); always a whole number of cells
+            (``cell_offset * resolution``), so cell boundaries do not depend on update order.
+        occupied: (nx, ny) bool, cell holds at least one obstacle point.
+        nearest: (2, nx, ny) int32, grid index of the nearest occupied cell (or -1 if none
+            within ``max_clearance``).
+        dist: (nx, ny) float32, centre-to-centre distance to ``nearest`` in metres (capped).
+    """
+
+    def __init__(self, cfg: CollisionConfig | None = None) -> None:
+        self.cfg = cfg if cfg is not None else CollisionConfig()
+        self.cell_offset = np.zeros(2, dtype=np.int64)
+        """Global cell index of grid cell (0, 0)."""
+        self.occupied = np.zeros((0, 0), dtype=bool)
+        self.nearest = np.full((2, 0, 0), -1, dtype=np.int32)
+        self.dist = np.zeros((0, 0), dtype=np.float32)
+        self.n_points = 0
+        """Number of obstacle points absorbed so far."""
+
+    # ------------------------------------------------------------------ map building
+    @property
+    def origin(self) -> np.ndarray:
+        return self.cell_offset * self.cfg.resolution
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.occupied.shape  # type: ignore[return-value]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float] | None:
+        """(xmin, ymin, xmax, ymax) of the grid, or None when empty."""
+        if self.occupied.size == 0:
+            return None
+        r = self.cfg.resolution
+        nx, ny = self.shape
+        return (self.origin[0], self.origin[1], self.origin[0] + nx * r, self.origin[1] + ny * r)
+
+    def obstacle_bounds(self) -> tuple[float, float, float, float] | None:
+        """(xmin, ymin, xmax, ymax) of the occupied cell centres, or None when empty."""
+        c = self.occupied_centres()
+        if len(c) == 0:
+            return None
+        lo, hi = c.min(0), c.max(0)
+        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+    def select_obstacles(self, points: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+        """Filter and project: (N, 3) points + (N,) labels -> (M, 2) obstacle x-y.
+
+        (N, 2) input is taken as already-projected obstacle points (labels still filter).
+        """
+        p = _as_points(points, "points")
+        keep = np.all(np.isfinite(p), axis=1)
+        if labels is not None:
+            lab = np.asarray(labels).reshape(-1)
+            if lab.shape[0] != p.shape[0]:
+                raise ValueError(f"labels: expected {p.shape[0]} labels, got {lab.shape[0]}")
+            keep &= np.isin(lab, np.asarray(self.cfg.obstacle_labels))
+        if p.shape[1] == 3:
+            keep &= (p[:, 2] >= self.cfg.z_min) & (p[:, 2] <= self.cfg.z_max)
+        return p[keep, :2]
+
+    def update(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray | None = None,
+        T_common_frame: np.ndarray | None = None,
+    ) -> int:
+        """Add map points; returns the number of newly occupied cells.
+
+        Args:
+            points: (N, 3) points (z up, metres) in a local frame, or (N, 2) projected points.
+            labels: (N,) int semantic labels; only ``cfg.obstacle_labels`` count. None: all
+                points are obstacles.
+            T_common_frame: 4x4 pose mapping the points' frame into the planning frame
+                (``T_common_localframe``); None if they already are in it. Needs (N, 3) points.
+        """
+        p = _as_points(points, "points")
+        if T_common_frame is not None:
+            if p.shape[1] != 3:
+                raise ValueError("T_common_frame needs (N, 3) points")
+            T = np.asarray(T_common_frame, dtype=np.float64)
+            if T.shape != (4, 4):
+                raise ValueError(f"T_common_frame: expected 4x4, got {T.shape}")
+            p = transform_points(T, p)
+        xy = self.select_obstacles(p, labels)
+        self.n_points += len(xy)
+        if len(xy) == 0:
+            return 0
+        self._ensure_extent(xy.min(0), xy.max(0))
+        r = self.cfg.resolution
+        ij = np.floor(xy / r).astype(np.int64) - self.cell_offset
+        nx, ny = self.shape
+        ij = np.clip(ij, 0, [nx - 1, ny - 1])
+        flat = np.unique(ij[:, 0] * ny + ij[:, 1])
+        flat = flat[~self.occupied.reshape(-1)[flat]]
+        if len(flat) == 0:
+            return 0
+        ii, jj = np.divmod(flat, ny)
+        self.occupied[ii, jj] = True
+        self._update_window(ii, jj)
+        return len(flat)
+
+    def _ensure_extent(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        r = self.cfg.resolution
+        # outside the grid every point must be >= max_clearance from any obstacle
+        pad = max(self.cfg.grow_padding, self.cfg.max_clearance + r)
+        if self.occupied.size == 0:
+            self.cell_offset = np.floor((lo - pad) / r).astype(np.int64)
+            n = (np.ceil((hi + pad) / r).astype(np.int64) - self.cell_offset + 1).astype(int)
+            self.occupied = np.zeros(tuple(n), dtype=bool)
+            self.nearest = np.full((2, *n), -1, dtype=np.int32)
+            self.dist = np.full(tuple(n), self.cfg.max_clearance, dtype=np.float32)
+            return
+        nx, ny = self.shape
+        cur_hi = self.origin + np.array([nx, ny]) * r
+        need = self.cfg.max_clearance + r
+        if np.all(lo - need >= self.origin) and np.all(hi + need < cur_hi):
+            return
+        # grow by whole cells so existing indices shift by an integer offset
+        shift = np.where(lo - need < self.origin, np.ceil((self.origin - lo + pad) / r), 0)
+        extra = np.where(hi + need >= cur_hi, np.ceil((hi - cur_hi + pad) / r) + 1, 0)
+        shift, extra = shift.astype(int), extra.astype(int)
+        new_n = np.array([nx, ny]) + shift + extra
+        occ = np.zeros(tuple(new_n), dtype=bool)
+        near = np.full((2, *new_n), -1, dtype=np.int32)
+        dist = np.full(tuple(new_n), self.cfg.max_clearance, dtype=np.float32)
+        sx, sy = shift
+        occ[sx : sx + nx, sy : sy + ny] = self.occupied
+        dist[sx : sx + nx, sy : sy + ny] = self.dist
+        valid = self.nearest[0] >= 0
+        near[0, sx : sx + nx, sy : sy + ny] = np.where(valid, self.nearest[0] + sx, -1)
+        near[1, sx : sx + nx, sy : sy + ny] = np.where(valid, self.nearest[1] + sy, -1)
+        self.cell_offset = self.cell_offset - shift
+        self.occupied, self.nearest, self.dist = occ, near, dist
+
+    def _update_window(self, ii: np.ndarray, jj: np.ndarray) -> None:
+        """Merge the distance to the new occupied cells (ii, jj) into ``dist``/``nearest``."""
+        r = self.cfg.resolution
+        nx, ny = self.shape
+        padc = int(math.ceil(self.cfg.max_clearance / r)) + 1
+        x0, x1 = max(int(ii.min()) - padc, 0), min(int(ii.max()) + padc + 1, nx)
+        y0, y1 = max(int(jj.min()) - padc, 0), min(int(jj.max()) + padc + 1, ny)
+        win = np.ones((x1 - x0, y1 - y0), dtype=bool)
+        win[ii - x0, jj - y0] = False  # feature cells = the new obstacles only
+        d, idx = ndimage.distance_transform_edt(win, sampling=r, return_indices=True)
+        d = d.astype(np.float32)
+        sub = self.dist[x0:x1, y0:y1]
+        better = d < sub
+        sub[better] = d[better]
+        np.minimum(sub, self.cfg.max_clearance, out=sub)
+        for k, off in ((0, x0), (1, y0)):
+            nk = self.nearest[k, x0:x1, y0:y1]
+            nk[better] = idx[k][better] + off
+
+    def occupied_centres(self) -> np.ndarray:
+        """(K, 2) planning-frame x-y of the occupied cell centres."""
+        ii, jj = np.nonzero(self.occupied)
+        r = self.cfg.resolution
+        return (self.cell_offset + np.stack([ii, jj], axis=1) + 0.5) * r
+
+    # ------------------------------------------------------------------ queries
+    def clearance(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) x-y -> (N,) distance (m) to the nearest obstacle cell centre, capped at
+        ``cfg.max_clearance``. Not inflated: compare with ``cfg.inflation``. Outside the grid
+        (unknown space) the clearance is the cap."""
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        out = np.full(len(q), self.cfg.max_clearance)
+        if self.occupied.size == 0 or len(q) == 0:
+            return out
+        r = self.cfg.resolution
+        f = q / r - self.cell_offset
+        ij = np.floor(f).astype(np.int64)
+        nx, ny = self.shape
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        if not inside.all():
+            ij = ij[inside]
+            q = q[inside]
+            f = f[inside]
+        ni = self.nearest[0, ij[:, 0], ij[:, 1]]
+        nj = self.nearest[1, ij[:, 0], ij[:, 1]]
+        has = ni >= 0
+        d = np.hypot(f[:, 0] - (ni + 0.5), f[:, 1] - (nj + 0.5)) * r
+        d = np.where(has, np.minimum(d, self.cfg.max_clearance), self.cfg.max_clearance)
+        out[inside] = d
+        return out
+
+    def is_free(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) x-y -> (N,) bool: the robot disk centred there touches no obstacle.
+
+        Non-finite points are not free."""
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        finite = np.all(np.isfinite(q), axis=1)
+        q = np.where(finite[:, None], q, 0.0)
+        return finite & (self.clearance(q) > self.cfg.inflation)
+
+    def segments_free(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """(N, 2), (N, 2) -> (N,) bool: every point of segment A[i]-B[i] is free.
+
+        Each segment is sampled at spacing <= resolution / 2 (end points included), all
+        segments in one vectorised gather."""
+        a = np.asarray(A, dtype=np.float64).reshape(-1, 2)
+        b = np.asarray(B, dtype=np.float64).reshape(-1, 2)
+        if a.shape != b.shape:
+            raise ValueError(f"segments_free: A {a.shape} and B {b.shape} differ")
+        n = len(a)
+        if n == 0:
+            return np.zeros(0, dtype=bool)
+        finite = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+        a = np.where(finite[:, None], a, 0.0)
+        b = np.where(finite[:, None], b, 0.0)
+        if self.occupied.size == 0:
+            return finite
+        step = 0.5 * self.cfg.resolution
+        L = np.hypot(*(b - a).T)
+        k = np.ceil(L / step).astype(np.int64) + 1  # samples per segment (>= 1)
+        total = int(k.sum())
+        seg = np.repeat(np.arange(n), k)
+        start = np.cumsum(k) - k
+        local = np.arange(total) - np.repeat(start, k)
+        denom = np.maximum(k - 1, 1)
+        t = local / np.repeat(denom, k)
+        pts = a[seg] + (b[seg] - a[seg]) * t[:, None]
+        ok = self.clearance(pts) > self.cfg.inflation
+        bad = np.bincount(seg[~ok], minlength=n)
+        return finite & (bad == 0)
+
+    def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """One segment a (2,) -> b (2,)."""
+        return bool(self.segments_free(np.asarray(a)[None], np.asarray(b)[None])[0])
+
+    def path_free(self, path: np.ndarray) -> bool:
+        """(M, 2) polyline is free (every vertex and every segment)."""
+        p = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+        if len(p) == 1:
+            return bool(self.is_free(p)[0])
+        return bool(self.segments_free(p[:-1], p[1:]).all())
+
+    def obstacle_polygons(self, simplify: bool = True) -> list:
+        """Footprints of the occupied cells as shapely polygons (planning frame, not inflated).
+
+        Each occupied cell is a ``resolution``-sized square; adjacent squares are merged. Inflating
+        these by ``cfg.inflation`` contains the checker's obstacle region (the checker inflates
+        the cell centres), so an exact shortest path around them (e.g. ``FreeSpace2D``) is
+        collision-free here and at most a few centimetres longer than the checker's optimum.
+        ``simplify`` drops collinear vertices of the merged outline.
+        """
+        from shapely.geometry import MultiPolygon, box
+        from shapely.ops import unary_union
+
+        c = self.occupied_centres()
+        if len(c) == 0:
+            return []
+        h = 0.5 * self.cfg.resolution
+        merged = unary_union([box(x - h, y - h, x + h, y + h) for x, y in c])
+        if simplify:
+            merged = merged.simplify(0.0)
+        geoms = list(merged.geoms) if isinstance(merged, MultiPolygon) else [merged]
+        return [g for g in geoms if not g.is_empty]

@@ -1,0 +1,271 @@
+"""RRT* core shared by SIMN's goal-vector planner and the uniform-sampling baseline.
+
+The two planners differ only in the sampler (:mod:`simn_sim.planning.samplers`); step size,
+budget, rewiring radius, goal bias and the collision checker are the same object/config, so a
+comparison between them measures the sampler alone.
+
+Everything is in the planning frame (x-y metres). After :meth:`RRTStar.plan` the tree
+(``planner.tree``: nodes, parents, costs, children) and the statistics (``planner.stats``) stay
+available for inspection, plotting and tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from simn_sim.config import Config, require
+from simn_sim.planning.collision import CollisionChecker
+from simn_sim.planning.samplers import (
+    Bounds,
+    GoalVectorConfig,
+    GoalVectorSampler,
+    Sampler,
+    UniformSampler,
+)
+from simn_sim.planning.smoothing import path_length, shortcut_path
+from simn_sim.planning.tree import Tree
+
+
+@dataclasses.dataclass(frozen=True)
+class RRTStarConfig(Config):
+    """RRT* parameters shared by all samplers (metres, milliseconds)."""
+
+    step_size: float = 0.5
+    """Maximum extension per iteration (steer distance)."""
+    rewire_radius: float = 1.0
+    """Choose-parent / rewiring neighbourhood radius (fixed)."""
+    max_neighbours: int = 30
+    """At most this many nearest nodes inside the radius are considered."""
+    goal_bias: float = 0.05
+    """Probability of sampling the goal itself."""
+    goal_tolerance: float = 1e-6
+    """The goal is reached when a node is inserted this close to it."""
+    max_iterations: int = 5000
+    """Iteration budget (one sample per iteration)."""
+    time_budget_ms: float = 200.0
+    """Wall-clock budget; 0 = iterations only."""
+    stop_at_first_solution: bool = False
+    """Return as soon as the goal is reached instead of improving until the budget."""
+    shortcut: bool = True
+    """Post-process the returned path with shortcut smoothing (the raw tree path is kept)."""
+    shortcut_iterations: int = 50
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(math.isfinite(self.step_size) and self.step_size > 0, n, "step_size", "> 0")
+        require(
+            math.isfinite(self.rewire_radius) and self.rewire_radius >= self.step_size,
+            n,
+            "rewire_radius",
+            ">= step_size",
+        )
+        require(self.max_neighbours >= 1, n, "max_neighbours", ">= 1")
+        require(0 <= self.goal_bias < 1, n, "goal_bias", "in [0, 1)")
+        require(self.goal_tolerance >= 0, n, "goal_tolerance", ">= 0")
+        require(self.max_iterations >= 1, n, "max_iterations", ">= 1")
+        require(
+            math.isfinite(self.time_budget_ms) and self.time_budget_ms >= 0,
+            n,
+            "time_budget_ms",
+            ">= 0",
+        )
+        require(self.shortcut_iterations >= 0, n, "shortcut_iterations", ">= 0")
+
+
+@dataclasses.dataclass
+class PlanStats:
+    """What one :meth:`RRTStar.plan` call did."""
+
+    iterations: int = 0
+    time_s: float = 0.0
+    first_solution_iteration: int | None = None
+    first_solution_time_s: float | None = None
+    first_solution_cost: float | None = None
+    cost: float | None = None
+    """Cost (length) of the raw tree path to the goal at the end."""
+    smoothed_cost: float | None = None
+    n_nodes: int = 0
+    n_rewires: int = 0
+    n_collision_rejects: int = 0
+
+
+def _as_xy(x: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float64).reshape(-1)
+    if a.shape != (2,):
+        raise ValueError(f"{name}: expected an x-y pair, got shape {np.shape(x)}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: not finite: {a}")
+    return a
+
+
+class RRTStar:
+    """RRT* with a pluggable sampler (pyroboplan-style planner object).
+
+    Args:
+        checker: collision model; the same instance should judge every planner.
+        sampler: :class:`GoalVectorSampler`, :class:`UniformSampler` or anything with
+            ``reset(start, goal, rng)`` / ``sample()``.
+        cfg: :class:`RRTStarConfig`.
+        rng: explicit generator; each plan() draws from it (same seed -> same plan).
+    """
+
+    def __init__(
+        self,
+        checker: CollisionChecker,
+        sampler: Sampler,
+        cfg: RRTStarConfig | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self.checker = checker
+        self.sampler = sampler
+        self.cfg = cfg if cfg is not None else RRTStarConfig()
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.tree: Tree | None = None
+        self.goal_index: int | None = None
+        self.raw_path: np.ndarray | None = None
+        self.path: np.ndarray | None = None
+        self.stats = PlanStats()
+
+    # ------------------------------------------------------------------ core steps
+    def _insert(self, x_new: np.ndarray, extra: int = -1) -> int:
+        """Choose-parent + add + rewire for a collision-free point; returns index or -1."""
+        tree = self.tree
+        assert tree is not None
+        cfg = self.cfg
+        near = tree.near(x_new, cfg.rewire_radius)
+        if extra >= 0 and not np.any(near == extra):
+            near = np.append(near, extra)
+        if len(near) == 0:
+            return -1
+        d = np.hypot(*(tree.xy[near] - x_new).T)
+        if len(near) > cfg.max_neighbours:
+            sel = np.argpartition(d, cfg.max_neighbours - 1)[: cfg.max_neighbours]
+            near, d = near[sel], d[sel]
+        c = tree.cost[near] + d
+        # check candidates cheapest first, in one batch: all are needed again for rewiring
+        free = self.checker.segments_free(tree.xy[near], np.broadcast_to(x_new, (len(near), 2)))
+        if not free.any():
+            return -1
+        c_free = np.where(free, c, np.inf)
+        k = int(np.argmin(c_free))
+        i_new = tree.add(x_new, int(near[k]), float(d[k]))
+        c_new = tree.cost[i_new]
+        # rewire: neighbours that become cheaper through the new node
+        better = free & (c_new + d < tree.cost[near] - 1e-12)
+        better[k] = False
+        for j, dj in zip(near[better], d[better], strict=True):
+            # cost of j may have dropped through an earlier rewire in this loop; re-check
+            if c_new + dj < tree.cost[j] - 1e-12:
+                tree.rewire(int(j), i_new, float(dj))
+        return i_new
+
+    def plan(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Plan from ``start`` (2,) to ``goal`` (2,) in the planning frame.
+
+        Returns the (M, 2) path (shortcut-smoothed if ``cfg.shortcut``), first row = start,
+        last row = goal, or None if no solution within the budget. Raises ValueError for
+        non-finite inputs or a start/goal in collision.
+        """
+        start = _as_xy(start, "start")
+        goal = _as_xy(goal, "goal")
+        free = self.checker.is_free(np.stack([start, goal]))
+        if not free[0]:
+            raise ValueError(f"start {start} is in collision")
+        if not free[1]:
+            raise ValueError(f"goal {goal} is in collision")
+        cfg = self.cfg
+        rng = self.rng
+        t0 = time.perf_counter()
+        deadline = t0 + cfg.time_budget_ms * 1e-3 if cfg.time_budget_ms > 0 else math.inf
+        self.sampler.reset(start, goal, rng)
+        self.tree = tree = Tree(start)
+        self.goal_index = None
+        self.raw_path = self.path = None
+        st = self.stats = PlanStats()
+        coin = rng.random(cfg.max_iterations)
+        step = cfg.step_size
+
+        if self.checker.segment_free(start, goal) and np.hypot(*(goal - start)) <= step:
+            self.goal_index = tree.add(goal, 0, float(np.hypot(*(goal - start))))
+            st.first_solution_iteration = 0
+            st.first_solution_time_s = time.perf_counter() - t0
+            st.first_solution_cost = float(tree.cost[self.goal_index])
+
+        it = 0
+        while it < cfg.max_iterations:
+            if self.goal_index is not None and cfg.stop_at_first_solution:
+                break
+            if time.perf_counter() > deadline:
+                break
+            it += 1
+            if coin[it - 1] < cfg.goal_bias and self.goal_index is None:
+                x_rand = goal
+            else:
+                x_rand = self.sampler.sample(tree)
+            i_near, d_near = tree.index.nearest(x_rand)
+            if d_near < 1e-9:
+                continue
+            if d_near > step:
+                x_new = tree.xy[i_near] + (x_rand - tree.xy[i_near]) * (step / d_near)
+            else:
+                x_new = np.array(x_rand, dtype=np.float64)
+            if not self.checker.is_free(x_new[None])[0]:
+                st.n_collision_rejects += 1
+                continue
+            i_new = self._insert(x_new, extra=i_near)
+            if i_new < 0:
+                st.n_collision_rejects += 1
+                continue
+            if self.goal_index is None:
+                dg = float(np.hypot(*(goal - x_new)))
+                if dg <= cfg.goal_tolerance:
+                    self.goal_index = i_new
+                elif dg <= step:
+                    g = self._insert(goal.copy(), extra=i_new)
+                    if g >= 0:
+                        self.goal_index = g
+                if self.goal_index is not None:
+                    st.first_solution_iteration = it
+                    st.first_solution_time_s = time.perf_counter() - t0
+                    st.first_solution_cost = float(tree.cost[self.goal_index])
+
+        st.iterations = it
+        st.n_nodes = len(tree)
+        st.n_rewires = tree.n_rewires
+        if self.goal_index is not None:
+            self.raw_path = tree.path_to(self.goal_index)
+            self.raw_path[-1] = goal
+            st.cost = float(tree.cost[self.goal_index])
+            if cfg.shortcut:
+                self.path = shortcut_path(self.raw_path, self.checker, rng, cfg.shortcut_iterations)
+            else:
+                self.path = self.raw_path.copy()
+            st.smoothed_cost = path_length(self.path)
+        st.time_s = time.perf_counter() - t0
+        return None if self.path is None else self.path.copy()
+
+
+def goal_vector_rrt_star(
+    checker: CollisionChecker,
+    cfg: RRTStarConfig | None = None,
+    gv_cfg: GoalVectorConfig | None = None,
+    bounds: Bounds | None = None,
+    rng: np.random.Generator | None = None,
+) -> RRTStar:
+    """SIMN's planner: RRT* with goal-vector ray sampling (``bounds`` only feed the optional
+    uniform fraction; unknown space beyond the map is free)."""
+    return RRTStar(checker, GoalVectorSampler(gv_cfg, bounds), cfg, rng)
+
+
+def uniform_rrt_star(
+    checker: CollisionChecker,
+    bounds: Bounds,
+    cfg: RRTStarConfig | None = None,
+    rng: np.random.Generator | None = None,
+) -> RRTStar:
+    """Baseline: RRT* with uniform sampling over ``bounds`` (same core, checker and config)."""
+    return RRTStar(checker, UniformSampler(bounds), cfg, rng)

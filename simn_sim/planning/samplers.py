@@ -1,0 +1,285 @@
+"""Samplers for RRT*: uniform over bounds, and SIMN's goal-vector rays.
+
+Goal-vector sampling (paper, "Navigation With Local Frames And Topological Map"): instead of the
+whole space, sample along the goal vector from the robot (start) to the goal and along
+alternative rays at angles ``±alpha, ±2 alpha, ..., ±n_rays alpha`` around it, so the tree grows
+towards the goal but can still go around large obstacles. A sample on ray k is
+
+    x = start + t * u(theta) + s * u_perp(theta),   theta = theta_goal + k alpha + dtheta
+
+with ``dtheta ~ U(-angular_spread, angular_spread)``, ``t ~ U(0, t_max)``,
+``t_max = max(min_range, range_scale * ||goal - start||)`` and lateral jitter
+``s ~ U(-lateral_spread, lateral_spread)``. Rays are drawn with weights ``ray_decay ** |k|`` (the
+goal ray most often). Optionally (``tree_anchor_fraction``) the rays are cast from a random tree
+node instead of the start. A fraction ``uniform_fraction`` of samples is drawn uniformly over a
+local window around start and goal, which keeps the planner probabilistically complete there.
+
+All samplers draw in batches from an explicit ``np.random.Generator`` (one RNG call per batch).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple, Protocol
+
+import numpy as np
+
+from simn_sim.config import Config, require
+from simn_sim.planning.tree import Tree
+
+Bounds = tuple[float, float, float, float]
+"""(xmin, ymin, xmax, ymax) in the planning frame, metres."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalVectorConfig(Config):
+    """Goal-vector ray sampling (angles in degrees, distances in metres)."""
+
+    n_rays: int = 6
+    """Alternative rays per side: angles 0, ±alpha, ..., ±n_rays * alpha."""
+    alpha_deg: float = 25.0
+    """Angle between neighbouring rays."""
+    ray_decay: float = 0.8
+    """Ray k is drawn with weight ray_decay ** |k| (1 = all rays equally likely)."""
+    angular_spread_deg: float = 5.0
+    """Half-width of the uniform angular jitter of each ray's direction."""
+    lateral_spread: float = 0.3
+    """Half-width of the uniform lateral jitter around each ray."""
+    range_scale: float = 1.3
+    """Samples along a ray reach up to range_scale * distance(start, goal) ..."""
+    min_range: float = 2.0
+    """... but at least this far."""
+    uniform_fraction: float = 0.05
+    """Fraction of samples drawn uniformly over the local window: the bounding box of start and
+    goal padded by ``uniform_margin`` (and clipped to the planner's bounds, if any)."""
+    uniform_margin: float = 3.0
+    tree_anchor_fraction: float = 0.5
+    """Fraction of ray samples cast from a random tree node instead of the start (0 = the
+    paper's sampler: rays from the robot only)."""
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.n_rays >= 0, n, "n_rays", ">= 0")
+        require(
+            math.isfinite(self.alpha_deg) and 0 < self.alpha_deg <= 180,
+            n,
+            "alpha_deg",
+            "in (0, 180]",
+        )
+        require(0 < self.ray_decay <= 1, n, "ray_decay", "in (0, 1]")
+        require(
+            math.isfinite(self.angular_spread_deg) and 0 <= self.angular_spread_deg <= 90,
+            n,
+            "angular_spread_deg",
+            "in [0, 90]",
+        )
+        require(
+            math.isfinite(self.lateral_spread) and self.lateral_spread >= 0,
+            n,
+            "lateral_spread",
+            ">= 0",
+        )
+        require(math.isfinite(self.range_scale) and self.range_scale > 0, n, "range_scale", "> 0")
+        require(math.isfinite(self.min_range) and self.min_range > 0, n, "min_range", "> 0")
+        require(0 <= self.uniform_fraction < 1, n, "uniform_fraction", "in [0, 1)")
+        require(
+            math.isfinite(self.uniform_margin) and self.uniform_margin >= 0,
+            n,
+            "uniform_margin",
+            ">= 0",
+        )
+        require(0 <= self.tree_anchor_fraction <= 1, n, "tree_anchor_fraction", "in [0, 1]")
+
+    def ray_offsets(self) -> np.ndarray:
+        """(2 n_rays + 1,) ray indices k = 0, -1, 1, -2, 2, ... (angle = k * alpha)."""
+        ks = [0]
+        for k in range(1, self.n_rays + 1):
+            ks += [-k, k]
+        return np.array(ks, dtype=np.int64)
+
+
+class RaySamples(NamedTuple):
+    """Goal-vector samples and how they were drawn (for inspection and tests)."""
+
+    xy: np.ndarray
+    """(N, 2) sample positions, planning frame."""
+    ray: np.ndarray
+    """(N,) int ray index k (angle k * alpha from the goal vector)."""
+    t: np.ndarray
+    """(N,) distance along the ray."""
+    lateral: np.ndarray
+    """(N,) signed lateral offset from the (jittered) ray direction."""
+    dtheta: np.ndarray
+    """(N,) angular jitter (rad) of the direction from the ray's nominal angle."""
+
+
+def sample_goal_vector(
+    rng: np.random.Generator,
+    start: np.ndarray,
+    goal: np.ndarray,
+    cfg: GoalVectorConfig,
+    n: int,
+) -> RaySamples:
+    """Draw n samples on the goal-vector rays from ``start`` (2,) towards ``goal`` (2,)."""
+    start = np.asarray(start, dtype=np.float64)
+    goal = np.asarray(goal, dtype=np.float64)
+    v = goal - start
+    dist = float(np.hypot(*v))
+    theta0 = math.atan2(v[1], v[0]) if dist > 1e-12 else 0.0
+    ks = cfg.ray_offsets()
+    w = cfg.ray_decay ** np.abs(ks).astype(np.float64)
+    ray = rng.choice(ks, size=n, p=w / w.sum())
+    t_max = max(cfg.min_range, cfg.range_scale * dist)
+    t = rng.uniform(0.0, t_max, size=n)
+    lat = rng.uniform(-cfg.lateral_spread, cfg.lateral_spread, size=n)
+    jit = rng.uniform(-1.0, 1.0, size=n) * math.radians(cfg.angular_spread_deg)
+    th = theta0 + ray * math.radians(cfg.alpha_deg) + jit
+    c, s = np.cos(th), np.sin(th)
+    xy = start + np.stack([t * c - lat * s, t * s + lat * c], axis=1)
+    return RaySamples(xy, ray, t, lat, jit)
+
+
+class Sampler(Protocol):
+    """What the RRT* core needs from a sampler."""
+
+    def reset(self, start: np.ndarray, goal: np.ndarray, rng: np.random.Generator) -> None: ...
+
+    def sample(self, tree: Tree | None = None) -> np.ndarray:
+        """One (2,) sample (the sampler may look at the current tree)."""
+        ...
+
+
+class _Batched:
+    batch: int = 256
+
+    def __init__(self) -> None:
+        self._buf = np.zeros((0, 2))
+        self._k = 0
+        self._rng: np.random.Generator | None = None
+
+    def _draw(self, n: int) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def sample(self, tree: Tree | None = None) -> np.ndarray:
+        if self._k >= len(self._buf):
+            self._buf = self._draw(self.batch)
+            self._k = 0
+        x = self._buf[self._k]
+        self._k += 1
+        return x
+
+
+def _check_bounds(bounds: Bounds) -> Bounds:
+    b = tuple(float(v) for v in bounds)
+    if len(b) != 4 or not all(math.isfinite(v) for v in b) or b[2] <= b[0] or b[3] <= b[1]:
+        raise ValueError(f"bounds must be finite (xmin, ymin, xmax, ymax) with min < max: {bounds}")
+    return b  # type: ignore[return-value]
+
+
+class UniformSampler(_Batched):
+    """Uniform samples over axis-aligned bounds (the baseline RRT* sampler)."""
+
+    def __init__(self, bounds: Bounds) -> None:
+        super().__init__()
+        self.bounds = _check_bounds(bounds)
+
+    def reset(self, start: np.ndarray, goal: np.ndarray, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self._buf = np.zeros((0, 2))
+        self._k = 0
+
+    def _draw(self, n: int) -> np.ndarray:
+        assert self._rng is not None, "call reset() first"
+        lo = np.array(self.bounds[:2])
+        hi = np.array(self.bounds[2:])
+        return self._rng.uniform(lo, hi, size=(n, 2))
+
+
+class GoalVectorSampler:
+    """Goal-vector ray samples (plus an optional uniform fraction over a local window).
+
+    The rays start at an *anchor*: the start (the robot, as in the paper) or, with probability
+    ``cfg.tree_anchor_fraction``, a random node of the growing tree, so the goal vector is also
+    cast from places the tree has already reached (around a wall, through a doorway).
+    ``tree_anchor_fraction = 0`` is the paper's sampler exactly.
+
+    Random numbers are drawn in batches from the generator given to :meth:`reset`. If
+    ``record`` is set, every sample is logged in ``self.log`` as
+    ``(anchor (2,), ray k, t, lateral, dtheta)`` (ray ``UNIFORM_RAY`` for uniform samples).
+    """
+
+    UNIFORM_RAY = -999
+    batch = 256
+
+    def __init__(
+        self,
+        cfg: GoalVectorConfig | None = None,
+        bounds: Bounds | None = None,
+        record: bool = False,
+    ) -> None:
+        self.cfg = cfg if cfg is not None else GoalVectorConfig()
+        self.bounds = _check_bounds(bounds) if bounds is not None else None
+        self.record = record
+        self.log: list[tuple[np.ndarray, int, float, float, float]] = []
+        self.start = np.zeros(2)
+        self.goal = np.zeros(2)
+        self._rng: np.random.Generator | None = None
+        self._k = self._n = 0
+        ks = self.cfg.ray_offsets()
+        w = self.cfg.ray_decay ** np.abs(ks).astype(np.float64)
+        self._ks, self._kp = ks, w / w.sum()
+        self._alpha = math.radians(self.cfg.alpha_deg)
+        self._spread = math.radians(self.cfg.angular_spread_deg)
+
+    def reset(self, start: np.ndarray, goal: np.ndarray, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self.start = np.asarray(start, dtype=np.float64).copy()
+        self.goal = np.asarray(goal, dtype=np.float64).copy()
+        self._k = self._n = 0
+        self.log = []
+
+    def _refill(self) -> None:
+        assert self._rng is not None, "call reset() first"
+        rng, n, cfg = self._rng, self.batch, self.cfg
+        self._ray = rng.choice(self._ks, size=n, p=self._kp)
+        self._f = rng.random(n)
+        self._lat = rng.uniform(-cfg.lateral_spread, cfg.lateral_spread, size=n)
+        self._jit = rng.uniform(-self._spread, self._spread, size=n)
+        self._anchor_u = rng.random(n)
+        self._node_u = rng.random(n)
+        self._unif_u = rng.random(n)
+        lo = np.minimum(self.start, self.goal) - cfg.uniform_margin
+        hi = np.maximum(self.start, self.goal) + cfg.uniform_margin
+        if self.bounds is not None:
+            lo = np.clip(lo, self.bounds[:2], self.bounds[2:])
+            hi = np.clip(hi, self.bounds[:2], self.bounds[2:])
+        self._unif = rng.uniform(lo, np.maximum(hi, lo + 1e-6), size=(n, 2))
+        self._k, self._n = 0, n
+
+    def sample(self, tree: Tree | None = None) -> np.ndarray:
+        """One (2,) sample; ``tree`` (the planner's tree) enables tree anchors."""
+        if self._k >= self._n:
+            self._refill()
+        k = self._k
+        self._k += 1
+        cfg = self.cfg
+        if self._unif_u[k] < cfg.uniform_fraction:
+            x = self._unif[k]
+            if self.record:
+                self.log.append((x.copy(), self.UNIFORM_RAY, 0.0, 0.0, 0.0))
+            return x
+        anchor = self.start
+        if tree is not None and tree.n > 1 and self._anchor_u[k] < cfg.tree_anchor_fraction:
+            anchor = tree.xy[int(self._node_u[k] * tree.n)]
+        dx, dy = self.goal[0] - anchor[0], self.goal[1] - anchor[1]
+        dist = math.hypot(dx, dy)
+        th = (math.atan2(dy, dx) if dist > 1e-12 else 0.0) + self._ray[k] * self._alpha
+        th += self._jit[k]
+        t = self._f[k] * max(cfg.min_range, cfg.range_scale * dist)
+        lat = self._lat[k]
+        c, s = math.cos(th), math.sin(th)
+        x = np.array([anchor[0] + t * c - lat * s, anchor[1] + t * s + lat * c])
+        if self.record:
+            self.log.append((anchor.copy(), int(self._ray[k]), t, lat, float(self._jit[k])))
+        return x

@@ -1,0 +1,81 @@
+"""Path post-processing with the collision checker: shortcutting (planning frame x-y)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simn_sim.planning.collision import CollisionChecker
+
+
+def path_length(path: np.ndarray) -> float:
+    """Length (m) of an (M, 2) polyline."""
+    p = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
+
+
+def greedy_shortcut(path: np.ndarray, checker: CollisionChecker) -> np.ndarray:
+    """From each kept vertex jump to the furthest later vertex that is visible (one vectorised
+    visibility check per kept vertex). Returns an (K, 2) sub-polyline, K <= M, never longer."""
+    p = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+    if len(p) <= 2:
+        return p.copy()
+    keep = [0]
+    i = 0
+    last = len(p) - 1
+    while i < last:
+        js = np.arange(i + 1, last + 1)
+        free = checker.segments_free(np.repeat(p[i][None], len(js), axis=0), p[js])
+        # furthest visible vertex; the next vertex is always reachable along the path itself
+        ok = js[free]
+        j = int(ok.max()) if len(ok) else i + 1
+        keep.append(j)
+        i = j
+    return p[keep]
+
+
+def random_shortcut(
+    path: np.ndarray,
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 50,
+) -> np.ndarray:
+    """Random shortcutting between points anywhere on the polyline (not just vertices), which
+    also cuts corners between vertices. Each accepted shortcut strictly shortens the path."""
+    p = np.asarray(path, dtype=np.float64).reshape(-1, 2).copy()
+    for _ in range(iterations):
+        if len(p) < 3:
+            break
+        seg = np.hypot(*np.diff(p, axis=0).T)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        total = cum[-1]
+        if total <= 0:
+            break
+        s0, s1 = np.sort(rng.uniform(0.0, total, size=2))
+        i0 = int(np.searchsorted(cum, s0, side="right") - 1)
+        i1 = int(np.searchsorted(cum, s1, side="right") - 1)
+        i0, i1 = min(i0, len(seg) - 1), min(i1, len(seg) - 1)
+        if i1 <= i0:
+            continue
+        q0 = p[i0] + (p[i0 + 1] - p[i0]) * ((s0 - cum[i0]) / max(seg[i0], 1e-12))
+        q1 = p[i1] + (p[i1 + 1] - p[i1]) * ((s1 - cum[i1]) / max(seg[i1], 1e-12))
+        if np.hypot(*(q1 - q0)) >= s1 - s0 - 1e-9:
+            continue
+        if checker.segment_free(q0, q1):
+            p = np.concatenate([p[: i0 + 1], q0[None], q1[None], p[i1 + 1 :]])
+    # drop duplicate consecutive points
+    keep = np.concatenate([[True], np.hypot(*np.diff(p, axis=0).T) > 1e-9])
+    return p[keep]
+
+
+def shortcut_path(
+    path: np.ndarray,
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 50,
+) -> np.ndarray:
+    """Greedy vertex shortcut, then random shortcuts, then greedy again. (M, 2) -> (K, 2)."""
+    p = greedy_shortcut(path, checker)
+    if iterations > 0:
+        p = random_shortcut(p, checker, rng, iterations)
+        p = greedy_shortcut(p, checker)
+    return p

@@ -1,0 +1,167 @@
+"""Inspectable planning tree (nodes, parents, costs, children) with a spatial index.
+
+The nearest-neighbour index is log-structured: a static ``scipy.spatial.cKDTree`` over most
+nodes plus a small buffer of recent nodes (at most a quarter of the tree) that is searched
+vectorised; the KD-tree is rebuilt when the buffer fills, so rebuilds happen at geometrically
+spaced sizes (amortised O(log n) per insert) and no query scans the whole tree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+class NodeIndex:
+    """Incremental nearest / radius queries over 2-D points (planning frame x-y metres)."""
+
+    def __init__(self, min_buffer: int = 64, buffer_fraction: float = 0.25) -> None:
+        self.min_buffer = min_buffer
+        self.buffer_fraction = buffer_fraction
+        self._pts = np.zeros((0, 2))
+        self._n = 0
+        self._kd: cKDTree | None = None
+        self._n_static = 0
+        self.rebuilds = 0
+
+    def reset(self, pts: np.ndarray) -> None:
+        """Point the index at the tree's (capacity, 2) node storage (first n rows valid)."""
+        self._pts = pts
+        self._n = 0
+        self._kd = None
+        self._n_static = 0
+
+    def add(self, pts: np.ndarray, n: int) -> None:
+        """The storage is now ``pts`` with ``n`` valid rows (appended at the end)."""
+        self._pts = pts
+        self._n = n
+        if n - self._n_static > max(self.min_buffer, int(self.buffer_fraction * self._n_static)):
+            self._kd = cKDTree(pts[:n].copy())
+            self._n_static = n
+            self.rebuilds += 1
+
+    def nearest(self, q: np.ndarray) -> tuple[int, float]:
+        """Index and distance of the nearest stored point to q (2,)."""
+        best_i, best_d = -1, np.inf
+        if self._kd is not None:
+            d, i = self._kd.query(q)
+            best_i, best_d = int(i), float(d)
+        if self._n > self._n_static:
+            buf = self._pts[self._n_static : self._n]
+            d2 = np.einsum("ij,ij->i", buf - q, buf - q)
+            k = int(np.argmin(d2))
+            d = float(np.sqrt(d2[k]))
+            if d < best_d:
+                best_i, best_d = self._n_static + k, d
+        return best_i, best_d
+
+    def within(self, q: np.ndarray, radius: float) -> np.ndarray:
+        """Indices (int64) of stored points with ``||p - q|| <= radius``."""
+        parts = []
+        if self._kd is not None:
+            parts.append(np.asarray(self._kd.query_ball_point(q, radius), dtype=np.int64))
+        if self._n > self._n_static:
+            buf = self._pts[self._n_static : self._n]
+            d2 = np.einsum("ij,ij->i", buf - q, buf - q)
+            parts.append(np.nonzero(d2 <= radius * radius)[0] + self._n_static)
+        if not parts:
+            return np.zeros(0, dtype=np.int64)
+        return np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+class Tree:
+    """RRT/RRT* tree in the planning frame.
+
+    Public arrays (views of the first ``n`` nodes):
+        xy: (n, 2) float64 node positions (x-y metres).
+        parent: (n,) int64, -1 for the root.
+        cost: (n,) float64 cost-to-come (path length from the root).
+    ``children[i]`` lists node i's children. Node 0 is the root.
+    """
+
+    def __init__(self, root: np.ndarray, capacity: int = 1024) -> None:
+        self._xy = np.zeros((capacity, 2))
+        self._parent = np.full(capacity, -1, dtype=np.int64)
+        self._cost = np.zeros(capacity)
+        self.children: list[list[int]] = []
+        self.n = 0
+        self.index = NodeIndex()
+        self.index.reset(self._xy)
+        self.n_rewires = 0
+        self.add(np.asarray(root, dtype=np.float64), -1, 0.0)
+
+    @property
+    def xy(self) -> np.ndarray:
+        return self._xy[: self.n]
+
+    @property
+    def parent(self) -> np.ndarray:
+        return self._parent[: self.n]
+
+    @property
+    def cost(self) -> np.ndarray:
+        return self._cost[: self.n]
+
+    def __len__(self) -> int:
+        return self.n
+
+    def add(self, xy: np.ndarray, parent: int, edge_cost: float) -> int:
+        """Append a node under ``parent`` with the given edge length; returns its index."""
+        if self.n == len(self._xy):
+            cap = 2 * len(self._xy)
+            self._xy = np.concatenate([self._xy, np.zeros((cap - self.n, 2))])
+            self._parent = np.concatenate([self._parent, np.full(cap - self.n, -1, np.int64)])
+            self._cost = np.concatenate([self._cost, np.zeros(cap - self.n)])
+        i = self.n
+        self._xy[i] = xy
+        self._parent[i] = parent
+        self._cost[i] = 0.0 if parent < 0 else self._cost[parent] + edge_cost
+        self.children.append([])
+        if parent >= 0:
+            self.children[parent].append(i)
+        self.n += 1
+        self.index.add(self._xy, self.n)
+        return i
+
+    def rewire(self, child: int, new_parent: int, edge_cost: float) -> None:
+        """Re-parent ``child`` under ``new_parent``; the cost change propagates to its subtree.
+
+        Callers only rewire when the new cost is lower, so no node's cost increases."""
+        old = int(self._parent[child])
+        new_cost = self._cost[new_parent] + edge_cost
+        delta = new_cost - self._cost[child]
+        if old >= 0:
+            self.children[old].remove(child)
+        self.children[new_parent].append(child)
+        self._parent[child] = new_parent
+        stack = [child]
+        while stack:
+            k = stack.pop()
+            self._cost[k] += delta
+            stack.extend(self.children[k])
+        self.n_rewires += 1
+
+    def nearest(self, q: np.ndarray) -> int:
+        return self.index.nearest(q)[0]
+
+    def near(self, q: np.ndarray, radius: float) -> np.ndarray:
+        return self.index.within(q, radius)
+
+    def path_to(self, i: int) -> np.ndarray:
+        """(M, 2) node positions from the root to node i."""
+        idx = []
+        while i >= 0:
+            idx.append(i)
+            i = int(self._parent[i])
+        return self._xy[idx[::-1]].copy()
+
+    def recomputed_costs(self) -> np.ndarray:
+        """(n,) cost-to-come recomputed from parents and positions (for invariant checks)."""
+        out = np.full(self.n, np.nan)
+        out[0] = 0.0
+        order = [0]
+        for k in order:
+            for c in self.children[k]:
+                out[c] = out[k] + float(np.linalg.norm(self._xy[c] - self._xy[k]))
+                order.append(c)
+        return out
