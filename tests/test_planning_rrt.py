@@ -1,0 +1,269 @@
+"""Goal-vector and uniform RRT*: collision-free, near-shortest, ray sampling, rewiring, seeds."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from simn_sim.config import ConfigError
+from simn_sim.planning import (
+    CollisionChecker,
+    GoalVectorConfig,
+    GoalVectorSampler,
+    RRTStarConfig,
+    goal_vector_rrt_star,
+    path_length,
+    sample_goal_vector,
+    shortcut_path,
+    uniform_rrt_star,
+)
+from simn_sim.planning.synthetic_maps import box_field_map, doorway_map, u_trap_map
+from simn_sim.planning.tree import NodeIndex, Tree
+
+# Deterministic iteration budgets (no wall-clock budget, so results do not depend on the machine).
+CFG = RRTStarConfig(time_budget_ms=0.0, max_iterations=2500, step_size=0.5, rewire_radius=1.0)
+LENGTH_FACTOR = 1.10  # smoothed path length vs the exact shortest path (measured: 1.004-1.014)
+
+
+def checker_for(m) -> CollisionChecker:
+    c = CollisionChecker()
+    c.update(m.points, m.labels)
+    return c
+
+
+@pytest.fixture(scope="module")
+def doorway():
+    m = doorway_map(door_width=1.0)
+    return m, checker_for(m)
+
+
+def around_corner_length(p, corner, q, r) -> float:
+    """Exact length of the shortest path p -> q wrapping around a disk (corner, r) that blocks
+    the straight line: two tangents plus the arc between the tangent points."""
+    p, corner, q = (np.asarray(v, float) for v in (p, corner, q))
+    d1, d2 = np.hypot(*(p - corner)), np.hypot(*(q - corner))
+    a1, a2 = p - corner, q - corner
+    between = math.acos(np.dot(a1, a2) / (d1 * d2))  # angle on the side the line crosses
+    arc = (2 * math.pi - between) - math.acos(r / d1) - math.acos(r / d2)
+    return math.sqrt(d1**2 - r**2) + math.sqrt(d2**2 - r**2) + r * arc
+
+
+def exact_reference(m, c: CollisionChecker, start, goal) -> float:
+    fs_mod = pytest.importorskip("simn_sim.geometry.freespace")
+    fs = fs_mod.FreeSpace2D(m.footprints, robot_radius=c.cfg.inflation, bounds=m.bounds)
+    d = fs.geodesic_distance(np.asarray(start, float), np.asarray(goal, float))
+    assert math.isfinite(d)
+    return d
+
+
+def make(kind: str, c: CollisionChecker, bounds, seed: int, cfg: RRTStarConfig = CFG):
+    rng = np.random.default_rng(seed)
+    if kind == "goal_vector":
+        return goal_vector_rrt_star(c, cfg, GoalVectorConfig(), bounds=bounds, rng=rng)
+    return uniform_rrt_star(c, bounds, cfg, rng=rng)
+
+
+@pytest.mark.parametrize("kind", ["goal_vector", "uniform"])
+def test_doorway_plan_is_free_and_near_exact(doorway, kind: str) -> None:
+    m, c = doorway
+    start, goal = np.array([2.0, 2.0]), np.array([8.0, 2.0])
+    # analytic: wrap around the top of the lower wall's end (5, 3.5), inflated by r
+    exact = around_corner_length(start, (5.0, 3.5), goal, c.cfg.inflation)
+    planner = make(kind, c, m.bounds, seed=1)
+    path = planner.plan(start, goal)
+    assert path is not None
+    np.testing.assert_allclose(path[0], start)
+    np.testing.assert_allclose(path[-1], goal)
+    assert c.path_free(path) and c.path_free(planner.raw_path)
+    L = path_length(path)
+    # the checker quantises obstacles to 5 cm cells: it may be a few cm more permissive
+    assert exact - 0.1 <= L <= LENGTH_FACTOR * exact
+    assert planner.stats.smoothed_cost == pytest.approx(L)
+    assert planner.stats.cost >= L - 1e-9  # smoothing never lengthens
+    assert planner.stats.first_solution_time_s is not None
+    assert planner.stats.first_solution_iteration <= planner.stats.iterations
+
+
+@pytest.mark.parametrize("kind", ["goal_vector", "uniform"])
+@pytest.mark.parametrize("which", ["u_trap", "box_field"])
+def test_plans_free_and_within_factor_of_freespace(kind: str, which: str) -> None:
+    if which == "u_trap":
+        m = u_trap_map()
+        start, goal = np.array([5.0, 3.0]), np.array([8.0, 3.0])  # inside the U, goal behind it
+    else:
+        m = box_field_map(np.random.default_rng(7))
+        start, goal = np.array([0.8, 1.0]), np.array([9.2, 7.0])
+    c = checker_for(m)
+    exact = exact_reference(m, c, start, goal)
+    planner = make(kind, c, m.bounds, seed=3, cfg=CFG.replace(max_iterations=4000))
+    path = planner.plan(start, goal)
+    assert path is not None, planner.stats
+    assert c.path_free(path)
+    assert exact - 0.1 <= path_length(path) <= LENGTH_FACTOR * exact
+
+
+def test_goal_vector_samples_lie_on_rays() -> None:
+    cfg = GoalVectorConfig(n_rays=3, alpha_deg=20.0, angular_spread_deg=4.0, lateral_spread=0.2)
+    start, goal = np.array([1.0, -2.0]), np.array([4.0, 2.0])
+    s = sample_goal_vector(np.random.default_rng(0), start, goal, cfg, 5000)
+    theta0 = math.atan2(*(goal - start)[::-1])
+    t_max = max(cfg.min_range, cfg.range_scale * np.hypot(*(goal - start)))
+    assert set(np.unique(s.ray)) == set(range(-3, 4))
+    nominal = theta0 + s.ray * math.radians(cfg.alpha_deg)
+    u = np.stack([np.cos(nominal), np.sin(nominal)], axis=1)
+    v = s.xy - start
+    along = np.einsum("ij,ij->i", v, u)
+    perp = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    # distance from the nominal ray <= lateral spread + t * sin(angular spread)
+    bound = cfg.lateral_spread + s.t * math.sin(math.radians(cfg.angular_spread_deg))
+    assert np.all(perp <= bound + 1e-9)
+    assert np.all(along >= -cfg.lateral_spread - 1e-9)
+    assert np.all(along <= t_max + cfg.lateral_spread + 1e-9)
+    assert np.all((s.t >= 0) & (s.t <= t_max))
+    # the goal ray is drawn most often, with the configured weight
+    w = cfg.ray_decay ** np.abs(cfg.ray_offsets())
+    assert np.mean(s.ray == 0) == pytest.approx(w[0] / w.sum(), abs=0.03)
+
+
+def test_sampler_tree_anchors_and_uniform_window() -> None:
+    cfg = GoalVectorConfig(tree_anchor_fraction=0.5, uniform_fraction=0.2, uniform_margin=1.0)
+    start, goal = np.array([0.0, 0.0]), np.array([5.0, 0.0])
+    smp = GoalVectorSampler(cfg, record=True)
+    smp.reset(start, goal, np.random.default_rng(1))
+    tree = Tree(start)
+    for x in np.random.default_rng(2).uniform(-1, 3, size=(30, 2)):
+        tree.add(x, 0, float(np.hypot(*(x - start))))
+    xs = np.array([smp.sample(tree) for _ in range(2000)])
+    kinds = np.array([rec[1] for rec in smp.log])
+    uni = kinds == GoalVectorSampler.UNIFORM_RAY
+    assert 0.15 < uni.mean() < 0.25
+    assert np.all((xs[uni] >= [-1, -1]) & (xs[uni] <= [6, 1]))  # window: bbox +- margin
+    from_tree = 0
+    ray_log = [r for r, u in zip(smp.log, uni, strict=True) if not u]
+    for x, (anchor, k, t, lat, dth) in zip(xs[~uni], ray_log, strict=True):
+        is_start = np.allclose(anchor, start)
+        from_tree += not is_start
+        assert is_start or np.any(np.all(np.isclose(tree.xy, anchor), axis=1))
+        th = math.atan2(*(goal - anchor)[::-1]) + k * math.radians(cfg.alpha_deg) + dth
+        expect = anchor + t * np.array([math.cos(th), math.sin(th)])
+        expect += lat * np.array([-math.sin(th), math.cos(th)])
+        np.testing.assert_allclose(x, expect, atol=1e-9)
+        assert abs(dth) <= math.radians(cfg.angular_spread_deg) + 1e-12
+        assert abs(lat) <= cfg.lateral_spread + 1e-12
+    assert 0.4 < from_tree / (~uni).sum() < 0.6
+
+
+def test_rewiring_never_increases_any_cost(doorway, monkeypatch) -> None:
+    m, c = doorway
+    calls = {"n": 0}
+    original = Tree.rewire
+
+    def checked(self: Tree, child: int, new_parent: int, edge_cost: float) -> None:
+        before = self.cost.copy()
+        original(self, child, new_parent, edge_cost)
+        after = self.cost
+        assert np.all(after <= before + 1e-12), "a rewire increased a cost"
+        assert after[child] < before[child]
+        calls["n"] += 1
+
+    monkeypatch.setattr(Tree, "rewire", checked)
+    planner = make("goal_vector", c, m.bounds, seed=5, cfg=CFG.replace(max_iterations=1500))
+    assert planner.plan([2.0, 2.0], [8.0, 2.0]) is not None
+    assert calls["n"] > 50 and calls["n"] == planner.stats.n_rewires
+    tree = planner.tree
+    np.testing.assert_allclose(tree.cost, tree.recomputed_costs(), atol=1e-9)
+    nonroot = np.arange(1, len(tree))
+    assert np.all(tree.cost[nonroot] > tree.cost[tree.parent[nonroot]])
+    # every tree edge is collision-free
+    assert c.segments_free(tree.xy[tree.parent[nonroot]], tree.xy[nonroot]).all()
+
+
+@pytest.mark.parametrize("kind", ["goal_vector", "uniform"])
+def test_same_seed_same_plan(doorway, kind: str) -> None:
+    m, c = doorway
+    cfg = CFG.replace(max_iterations=800)
+    a = make(kind, c, m.bounds, seed=11, cfg=cfg)
+    b = make(kind, c, m.bounds, seed=11, cfg=cfg)
+    pa, pb = a.plan([2.0, 2.0], [8.0, 2.0]), b.plan([2.0, 2.0], [8.0, 2.0])
+    np.testing.assert_array_equal(pa, pb)
+    np.testing.assert_array_equal(a.tree.xy, b.tree.xy)
+    np.testing.assert_array_equal(a.tree.parent, b.tree.parent)
+    other = make(kind, c, m.bounds, seed=12, cfg=cfg)
+    other.plan([2.0, 2.0], [8.0, 2.0])
+    assert len(other.tree) != len(a.tree) or not np.array_equal(other.tree.xy, a.tree.xy)
+
+
+def test_bad_inputs_raise(doorway) -> None:
+    m, c = doorway
+    p = make("goal_vector", c, m.bounds, seed=0)
+    with pytest.raises(ValueError, match="start.*finite"):
+        p.plan([np.nan, 1.0], [8.0, 2.0])
+    with pytest.raises(ValueError, match="start .* in collision"):
+        p.plan([5.0, 1.0], [8.0, 2.0])
+    with pytest.raises(ValueError, match="goal .* in collision"):
+        p.plan([2.0, 2.0], [5.05, 2.0])
+    with pytest.raises(ValueError, match="x-y pair"):
+        p.plan([2.0, 2.0, 0.0], [8.0, 2.0])
+    with pytest.raises(ValueError, match="bounds"):
+        uniform_rrt_star(c, (0.0, 0.0, -1.0, 5.0))
+    for kw in (
+        dict(step_size=0.0),
+        dict(step_size=1.0, rewire_radius=0.5),
+        dict(goal_bias=1.0),
+        dict(max_iterations=0),
+        dict(time_budget_ms=float("nan")),
+    ):
+        with pytest.raises(ConfigError):
+            RRTStarConfig(**kw)
+    for kw in (
+        dict(alpha_deg=0.0),
+        dict(n_rays=-1),
+        dict(ray_decay=0.0),
+        dict(uniform_fraction=1.0),
+        dict(tree_anchor_fraction=1.5),
+    ):
+        with pytest.raises(ConfigError):
+            GoalVectorConfig(**kw)
+    with pytest.raises(ConfigError, match="unknown"):
+        RRTStarConfig.from_dict({"stepsize": 0.5})
+
+
+def test_unreachable_goal_returns_none() -> None:
+    m = doorway_map(door_width=0.3)  # narrower than the robot (2 * 0.25 m)
+    c = checker_for(m)
+    p = make("goal_vector", c, m.bounds, seed=0, cfg=CFG.replace(max_iterations=600))
+    assert p.plan([2.0, 2.0], [8.0, 2.0]) is None
+    assert p.path is None and p.stats.first_solution_time_s is None
+    assert p.stats.iterations == 600 and len(p.tree) > 10
+
+
+def test_shortcut_shortens_and_stays_free(doorway) -> None:
+    m, c = doorway
+    p = make("uniform", c, m.bounds, seed=4, cfg=CFG.replace(max_iterations=400, shortcut=False))
+    raw = p.plan([2.0, 2.0], [8.0, 2.0])
+    assert raw is not None
+    sm = shortcut_path(raw, c, np.random.default_rng(0), iterations=100)
+    assert c.path_free(sm)
+    assert path_length(sm) <= path_length(raw) + 1e-9
+    np.testing.assert_allclose(sm[[0, -1]], raw[[0, -1]])
+
+
+def test_node_index_matches_brute_force() -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-5, 5, size=(3000, 2))
+    store = np.zeros((4096, 2))
+    idx = NodeIndex()
+    idx.reset(store)
+    for n, p in enumerate(pts, start=1):
+        store[n - 1] = p
+        idx.add(store, n)
+        if n in (1, 7, 70, 500, 3000):
+            for q in rng.uniform(-7, 7, size=(20, 2)):
+                d = np.hypot(*(pts[:n] - q).T)
+                i, di = idx.nearest(q)
+                assert di == pytest.approx(d.min()) and d[i] == pytest.approx(d.min())
+                got = np.sort(idx.within(q, 1.3))
+                np.testing.assert_array_equal(got, np.nonzero(d <= 1.3)[0])
+    assert 3 < idx.rebuilds < 40  # log-structured: geometric rebuilds
