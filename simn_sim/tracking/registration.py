@@ -1,0 +1,315 @@
+"""Frame-to-map registration on an implicit surface (paper: "Building Spatial-Implicit Local Frames").
+
+A frame's points ``p_cam`` (N, 3), OpenCV camera frame, lie on the surface, so at the right pose
+``T_map_cam`` their SDF is zero. We minimise ``sum_i rho(r_i)`` with ``r_i = sdf(T p_i)`` by
+Levenberg-Marquardt with iteratively re-weighted Geman-McClure weights.
+
+Perturbation convention (left, in map coordinates, about the centroid ``c`` of the transformed
+points for conditioning): ``T <- T_c exp(dxi) T_c^-1 T`` with ``dxi = (omega, v)``. For a transformed
+point ``q = T p`` and ``p' = q - c``, ``q(dxi) ~ q + omega x p' + v``, so
+``dr/d(dxi) = [(p' x g)^T, g^T]`` with ``g = d sdf / d q`` -- the paper's Jacobian row with ``p``
+taken relative to the centroid (centring changes nothing but the conditioning of the 6x6 system
+and makes the degeneracy test meaningful). Step: ``dxi = -(J^T W J + lambda I)^-1 J^T W r``.
+
+The reported covariance is in gtsam's convention: right perturbation in the camera (body) frame,
+``T_map_cam exp(delta)``, ``delta = (omega, v)``, rotation first.
+
+The SDF is any callable ``sdf_and_grad(points_map) -> (sdf (N,), grad (N, 3)[, valid (N,)])``
+taking numpy float32 (or torch float32 with ``points_as="torch"``) and returning numpy or torch;
+without a ``valid`` output, non-finite values mark invalid points.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Any, Literal
+
+import numpy as np
+
+from simn_sim.config import Config, require
+from simn_sim.geometry.se3 import inv_T, se3_exp
+from simn_sim.tracking.lie import adjoint, check_pose
+
+SdfAndGrad = Callable[[Any], tuple]
+
+
+@dataclasses.dataclass(frozen=True)
+class RegistrationConfig(Config):
+    """LM registration settings (lengths in metres)."""
+
+    max_iters: int = 30
+    lambda_reg: float = 1e-3  # initial and minimum LM damping (paper: 1e-3)
+    lambda_up: float = 10.0  # damping factor after a rejected step
+    max_rejects: int = 6  # consecutive rejected steps before giving up on improving
+    gm_scale: float = 0.02  # Geman-McClure scale floor c (m); tuned, see docs/tracking.md
+    gm_mad_factor: float = 5.0  # adaptive scale c = max(gm_scale, factor * 1.4826 * MAD)
+    tol_rot: float = 1e-5  # convergence: step rotation (rad)
+    tol_trans: float = 1e-5  # convergence: step translation (m)
+    grad_norm_min: float = 0.5  # valid SDF gradient norm range (true SDF: 1)
+    grad_norm_max: float = 1.5
+    min_valid_points: int = 100
+    min_valid_fraction: float = 0.3
+    max_final_rms: float = 0.03  # RMS over inliers (|r| < 3 c) must end below this (m)
+    min_inlier_fraction: float = 0.5
+    max_rms_growth: float = 1.5  # final inlier RMS / initial must stay below this
+    degeneracy_ratio: float = 1e-3  # min/max eigenvalue of J^T W J must exceed this
+    fail_covariance: float = 1e6  # diagonal of the covariance reported on failure
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.max_iters >= 1, n, "max_iters", "must be >= 1")
+        require(self.lambda_reg > 0, n, "lambda_reg", "must be > 0")
+        require(self.lambda_up > 1, n, "lambda_up", "must be > 1")
+        require(self.max_rejects >= 1, n, "max_rejects", "must be >= 1")
+        require(self.gm_scale > 0, n, "gm_scale", "must be > 0")
+        require(self.gm_mad_factor >= 0, n, "gm_mad_factor", "must be >= 0")
+        require(self.tol_rot > 0 and self.tol_trans > 0, n, "tol_rot", "tolerances must be > 0")
+        require(
+            0 < self.grad_norm_min < 1 < self.grad_norm_max,
+            n,
+            "grad_norm_min",
+            "need 0 < grad_norm_min < 1 < grad_norm_max",
+        )
+        require(self.min_valid_points >= 6, n, "min_valid_points", "must be >= 6")
+        require(0 <= self.min_valid_fraction <= 1, n, "min_valid_fraction", "must be in [0, 1]")
+        require(0 <= self.min_inlier_fraction <= 1, n, "min_inlier_fraction", "must be in [0, 1]")
+        require(self.max_final_rms > 0, n, "max_final_rms", "must be > 0")
+        require(self.max_rms_growth >= 1, n, "max_rms_growth", "must be >= 1")
+        require(0 < self.degeneracy_ratio < 1, n, "degeneracy_ratio", "must be in (0, 1)")
+        require(self.fail_covariance > 0, n, "fail_covariance", "must be > 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class RegistrationResult:
+    """Outcome of :func:`register`.
+
+    pose: T_map_cam (4, 4) float64 -- the estimate, or the prior when ``success`` is False.
+    covariance: (6, 6), right perturbation in the camera frame, (omega, v) order.
+    """
+
+    pose: np.ndarray
+    covariance: np.ndarray
+    iterations: int
+    n_valid: int
+    n_inliers: int
+    final_rms: float  # RMS SDF residual (m) over inliers at the returned estimate
+    initial_rms: float
+    success: bool
+    reason: str  # "ok" or why it failed
+    converged: bool  # the last step was below the tolerances
+    eig_ratio: float  # min/max eigenvalue of J^T W J (centred); small = degenerate
+    seconds: float
+
+
+def _to_numpy(x: Any) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def check_points(points: Any, name: str = "points_cam") -> np.ndarray:
+    """Validate (N, 3) float32/float64 finite non-empty points; return float64 numpy."""
+    if hasattr(points, "detach"):
+        points = points.detach().cpu().numpy()
+    if not isinstance(points, np.ndarray):
+        raise ValueError(f"{name} must be a numpy array or torch tensor, got {type(points)}")
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {points.shape}")
+    if points.dtype not in (np.float32, np.float64):
+        raise ValueError(f"{name} must be float32 or float64, got {points.dtype}")
+    if points.shape[0] == 0:
+        raise ValueError(f"{name} is empty")
+    if not np.isfinite(points).all():
+        raise ValueError(f"{name} contains NaN or inf")
+    return points.astype(np.float64)
+
+
+class _Evaluator:
+    """Evaluates residuals, Jacobians and validity of the points under a pose."""
+
+    def __init__(self, P: np.ndarray, fn: SdfAndGrad, cfg: RegistrationConfig, as_torch: bool):
+        self.P, self.fn, self.cfg, self.as_torch = P, fn, cfg, as_torch
+
+    def __call__(self, T: np.ndarray) -> dict[str, np.ndarray]:
+        q = self.P @ T[:3, :3].T + T[:3, 3]
+        q32 = q.astype(np.float32)
+        if self.as_torch:
+            import torch
+
+            q32 = torch.from_numpy(q32)
+        out = self.fn(q32)
+        if not isinstance(out, tuple | list) or len(out) not in (2, 3):
+            raise ValueError("sdf_and_grad must return (sdf, grad) or (sdf, grad, valid)")
+        sdf = _to_numpy(out[0]).astype(np.float64).reshape(-1)
+        grad = _to_numpy(out[1]).astype(np.float64).reshape(-1, 3)
+        n = len(q)
+        if sdf.shape[0] != n or grad.shape[0] != n:
+            raise ValueError(f"sdf_and_grad returned {sdf.shape[0]} values for {n} points")
+        valid = np.isfinite(sdf) & np.isfinite(grad).all(axis=1)
+        if len(out) == 3:
+            valid &= _to_numpy(out[2]).astype(bool).reshape(-1)
+        gn = np.linalg.norm(np.where(valid[:, None], grad, 0.0), axis=1)
+        valid &= (gn >= self.cfg.grad_norm_min) & (gn <= self.cfg.grad_norm_max)
+        return {"q": q, "r": np.where(valid, sdf, 0.0), "g": grad, "valid": valid}
+
+
+def _gm_weights(r: np.ndarray, c: float) -> np.ndarray:
+    """IRLS weights of Geman-McClure rho(r) = r^2 c^2 / (2 (c^2 + r^2)): (c^2/(c^2+r^2))^2."""
+    return (c * c / (c * c + r * r)) ** 2
+
+
+def _gm_cost(r: np.ndarray, valid: np.ndarray, c: float) -> float:
+    """Robust cost; an invalid point counts as a saturated outlier (c^2 / 2)."""
+    rho = 0.5 * r * r * c * c / (c * c + r * r)
+    return float(np.where(valid, rho, 0.5 * c * c).sum())
+
+
+def _scale(r: np.ndarray, valid: np.ndarray, cfg: RegistrationConfig) -> float:
+    rv = np.abs(r[valid])
+    if rv.size == 0:
+        return cfg.gm_scale
+    mad = float(np.median(rv))
+    return max(cfg.gm_scale, cfg.gm_mad_factor * 1.4826 * mad)
+
+
+def _normal_equations(ev: dict, c: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Centred J^T W J, J^T W r, the centroid, and sum w r^2 over valid points."""
+    v = ev["valid"]
+    q, r, g = ev["q"][v], ev["r"][v], ev["g"][v]
+    cen = q.mean(axis=0)
+    J = np.concatenate([np.cross(q - cen, g), g], axis=1)
+    w = _gm_weights(r, c)
+    Jw = J * w[:, None]
+    return Jw.T @ J, Jw.T @ r, cen, float((w * r * r).sum())
+
+
+def _inlier_rms(ev: dict, c: float) -> tuple[float, int]:
+    r = ev["r"][ev["valid"]]
+    inl = np.abs(r) < 3.0 * c
+    if not inl.any():
+        return float("inf"), 0
+    return float(np.sqrt(np.mean(r[inl] ** 2))), int(inl.sum())
+
+
+def register(
+    points_cam: Any,
+    sdf_and_grad: SdfAndGrad,
+    T_init: np.ndarray,
+    cfg: RegistrationConfig | None = None,
+    *,
+    points_as: Literal["numpy", "torch"] = "numpy",
+) -> RegistrationResult:
+    """Register (N, 3) camera-frame points to the zero level set of ``sdf_and_grad``.
+
+    T_init: (4, 4) initial ``T_map_cam`` (e.g. :func:`~simn_sim.tracking.lie.constant_velocity_prior`).
+    Never raises for poor convergence: on failure it returns ``T_init`` with ``success=False``
+    and a ``reason``. Raises ``ValueError`` only for bad input (shape, dtype, NaN, empty).
+    """
+    cfg = cfg or RegistrationConfig()
+    t0 = time.perf_counter()
+    P = check_points(points_cam)
+    T0 = check_pose(T_init, "T_init")
+    ev_fn = _Evaluator(P, sdf_and_grad, cfg, points_as == "torch")
+    fail_cov = np.eye(6) * cfg.fail_covariance
+
+    def fail(reason: str, it: int, ev: dict | None, rms0: float, ratio: float = float("nan")):
+        nv = int(ev["valid"].sum()) if ev is not None else 0
+        return RegistrationResult(
+            T0,
+            fail_cov,
+            it,
+            nv,
+            0,
+            float("nan"),
+            rms0,
+            False,
+            reason,
+            False,
+            ratio,
+            time.perf_counter() - t0,
+        )
+
+    n = len(P)
+    min_valid = max(cfg.min_valid_points, int(np.ceil(cfg.min_valid_fraction * n)))
+    ev = ev_fn(T0)
+    c = _scale(ev["r"], ev["valid"], cfg)
+    rms0, _ = _inlier_rms(ev, c)
+    if int(ev["valid"].sum()) < min_valid:
+        return fail(
+            f"too few valid points at the prior ({int(ev['valid'].sum())} < {min_valid})",
+            0,
+            ev,
+            rms0,
+        )
+    T = T0.copy()
+    lam = cfg.lambda_reg
+    converged = False
+    it = 0
+    rejects = 0
+    while it < cfg.max_iters:
+        it += 1
+        c = _scale(ev["r"], ev["valid"], cfg)
+        H, b, cen, _ = _normal_equations(ev, c)
+        cost = _gm_cost(ev["r"], ev["valid"], c)
+        accepted = False
+        while rejects < cfg.max_rejects:
+            try:
+                dxi = -np.linalg.solve(H + lam * np.eye(6), b)
+            except np.linalg.LinAlgError:
+                lam *= cfg.lambda_up
+                rejects += 1
+                continue
+            Tc = np.eye(4)
+            Tc[:3, 3] = cen
+            T_new = Tc @ se3_exp(dxi) @ inv_T(Tc) @ T
+            ev_new = ev_fn(T_new)
+            if _gm_cost(ev_new["r"], ev_new["valid"], c) <= cost:
+                T, ev = T_new, ev_new
+                lam = max(cfg.lambda_reg, lam / cfg.lambda_up)
+                rejects = 0
+                accepted = True
+                break
+            lam *= cfg.lambda_up
+            rejects += 1
+        if not accepted:
+            break  # no step decreases the cost: at a (local) minimum
+        rot = float(np.linalg.norm(dxi[:3]))
+        trans = float(np.linalg.norm(dxi[3:]))  # motion of the points' centroid
+        if rot < cfg.tol_rot and trans < cfg.tol_trans:
+            converged = True
+            break
+    if not accepted and rejects >= cfg.max_rejects:
+        converged = True  # cannot improve further
+
+    nv = int(ev["valid"].sum())
+    if nv < min_valid:
+        return fail(f"too few valid points ({nv} < {min_valid})", it, ev, rms0)
+    c = _scale(ev["r"], ev["valid"], cfg)
+    H, _, cen, wrr = _normal_equations(ev, c)
+    rms, n_inl = _inlier_rms(ev, c)
+    if not np.isfinite(H).all():
+        return fail("non-finite normal equations", it, ev, rms0)
+    eig = np.linalg.eigvalsh(H)
+    ratio = float(eig[0] / eig[-1]) if eig[-1] > 0 else 0.0
+    if ratio < cfg.degeneracy_ratio:
+        return fail(f"degenerate geometry (eigenvalue ratio {ratio:.2e})", it, ev, rms0, ratio)
+    if n_inl < cfg.min_inlier_fraction * nv:
+        return fail(f"too few inliers ({n_inl} of {nv})", it, ev, rms0, ratio)
+    if not np.isfinite(rms) or rms > cfg.max_final_rms:
+        return fail(f"residual too large (RMS {rms:.4f} m)", it, ev, rms0, ratio)
+    if rms > cfg.max_rms_growth * rms0 and rms > cfg.gm_scale:
+        return fail(f"residual blew up (RMS {rms0:.4f} -> {rms:.4f} m)", it, ev, rms0, ratio)
+
+    sigma2 = wrr / max(nv - 6, 1)
+    cov_c = sigma2 * np.linalg.inv(H)
+    Tc = np.eye(4)
+    Tc[:3, 3] = cen
+    A_inv = inv_T(inv_T(Tc) @ T)
+    Ad = adjoint(A_inv)
+    cov = Ad @ cov_c @ Ad.T
+    cov = 0.5 * (cov + cov.T)
+    return RegistrationResult(
+        T, cov, it, nv, n_inl, rms, rms0, True, "ok", converged, ratio, time.perf_counter() - t0
+    )
