@@ -201,6 +201,11 @@ class EpisodeMetrics:
         self._sim_time += step_dt
 
     @property
+    def collisions(self) -> int:
+        """Collision events so far (rising edges)."""
+        return self._collisions
+
+    @property
     def path_length_m(self) -> float:
         """Length travelled so far (metres)."""
         return self._path
