@@ -1,0 +1,1 @@
+"""Dataset input/output (TUM RGB-D format)."""
