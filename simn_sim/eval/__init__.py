@@ -1,0 +1,1 @@
+"""Evaluation of estimated trajectories against ground truth."""
