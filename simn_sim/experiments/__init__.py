@@ -1,0 +1,1 @@
+"""Experiments: episode runner, statistics (``stats``) and the regression gate (``compare``)."""
