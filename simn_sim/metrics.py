@@ -210,6 +210,26 @@ class EpisodeMetrics:
         """Length travelled so far (metres)."""
         return self._path
 
+    @property
+    def collided_steps(self) -> int:
+        """Steps with contact so far."""
+        return self._collided_steps
+
+    @property
+    def steps(self) -> int:
+        """Steps recorded so far."""
+        return self._steps
+
+    @property
+    def sim_time_s(self) -> float:
+        """Sim time recorded so far (seconds)."""
+        return self._sim_time
+
+    @property
+    def min_clearance_m(self) -> float:
+        """Smallest clearance recorded so far (metres; inf before the first step)."""
+        return self._min_clearance
+
     def finish(
         self,
         termination_reason: str,

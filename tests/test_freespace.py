@@ -333,4 +333,11 @@ def test_nearest_free_projects_penetrating_points():
     np.testing.assert_allclose(out[0], [0.75 + 1e-4, 0.1], atol=2e-5)
     np.testing.assert_allclose(out[2], [0.0, -0.75 - 1e-4], atol=2e-5)
     np.testing.assert_allclose(out[3], [5.0, 0.0])
-    assert np.isfinite(fs.distance_field_to([-3.0, 0.0]).distance(out[0]))
+    field = fs.distance_field_to([-3.0, 0.0])
+    assert np.isfinite(field.distance(out[0]))
+    # Snapped distance of a point 1 cm inside the inflated face: offset + distance from there.
+    inside = np.array([0.74, 0.0])
+    assert field.distance(inside) == math.inf
+    want = 0.01 + field.distance(np.array([0.75, 0.0]))
+    assert field.distance(inside, snap=0.02) == pytest.approx(want, abs=2e-4)
+    assert field.distance(inside[None], snap=0.005)[0] == math.inf  # too deep for this snap

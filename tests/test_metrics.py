@@ -75,8 +75,13 @@ def test_episode_metrics_accumulates_hand_computed_episode():
         ([3.0, 1.0], True, 0.05),  # collision event 2
         ([4.0, 1.0], False, 0.30),
     ]
+    running = []
     for xy, hit, clr in steps:
         m.step(np.array(xy), hit, clr)
+        running.append(m.collisions)
+    assert running == [0, 1, 1, 1, 2, 2]
+    assert (m.steps, m.collided_steps, m.min_clearance_m) == (6, 3, -0.01)
+    assert m.path_length_m == pytest.approx(5.0) and m.sim_time_s == pytest.approx(0.6)
     row = m.finish("success", final_distance=0.1, final_geodesic=0.1, success_distance=0.2)
     assert row["path_length_m"] == pytest.approx(5.0)
     assert row["geodesic_distance_m"] == 4.0

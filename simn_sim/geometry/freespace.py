@@ -731,20 +731,36 @@ class GoalField:
 
     # ------------------------------------------------------------------ public
 
-    def distance(self, xy: np.ndarray | Sequence) -> float | np.ndarray:
+    def distance(self, xy: np.ndarray | Sequence, snap: float = 0.0) -> float | np.ndarray:
         """Exact geodesic distance (metres) from ``xy`` to the goal.
 
         Args:
             xy: (2,) one point -> float; or (N, 2) -> (N,) float64. World x-y.
+            snap: metres. A point that is not free but within ``snap`` of free space (e.g. a
+                robot that physics let penetrate an obstacle by a few mm) is first moved to
+                the nearest free point q (:meth:`FreeSpace2D.nearest_free`); the result is then
+                ``|xy - q| + distance(q)``. 0 (default): no snapping.
 
         Returns:
-            ``math.inf`` for points that are not free or cannot reach the goal.
+            ``math.inf`` for points that are not free (beyond ``snap``) or cannot reach the goal.
         """
         p = _as_points(xy, "xy")
-        if p.shape == (2,):
-            return self._query(p).value
+        snap = float(snap)
+        if not (math.isfinite(snap) and snap >= 0.0):
+            raise ValueError(f"snap must be finite and >= 0, got {snap!r}")
         flat = p.reshape(-1, 2)
         out = np.array([self._query(q).value for q in flat], dtype=np.float64)
+        if snap > 0.0:
+            for k in np.nonzero(~self.space._free_unchecked(flat))[0]:
+                try:
+                    q = self.space.nearest_free(flat[k])
+                except RuntimeError:
+                    continue
+                off = float(np.hypot(*(q - flat[k])))
+                if off <= snap:
+                    out[k] = off + self._query(q).value
+        if p.shape == (2,):
+            return float(out[0])
         return out.reshape(p.shape[:-1])
 
     def path(self, xy: np.ndarray | Sequence[float]) -> np.ndarray | None:
