@@ -111,3 +111,169 @@ def test_bad_input() -> None:
         PoseGraphConfig(loop_robust="tukey")
     with pytest.raises(ConfigError, match="gnc_inlier_probability"):
         PoseGraphConfig(gnc_inlier_probability=1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Local frames and the topological map (simn_sim.tracking.localframes / topomap)
+# ---------------------------------------------------------------------------------------------
+from simn_sim.config import ConfigError as _ConfigError  # noqa: E402
+from simn_sim.geometry.se3 import make_T, pose_error  # noqa: E402
+from simn_sim.tracking.localframes import (  # noqa: E402
+    FrameTrigger,
+    FrameTriggerConfig,
+    LocalFrame,
+    unpack_feature_points,
+)
+from simn_sim.tracking.synthetic import AnalyticFrameMap, loop_scene, render_points  # noqa: E402
+from simn_sim.tracking.topomap import (  # noqa: E402
+    LoopClosureConfig,
+    TopoMap,
+    close_loop,
+    describe,
+    registration_callback,
+)
+
+
+def test_trigger_translation_only() -> None:
+    trig = FrameTrigger(FrameTriggerConfig(max_travel_m=1.0, max_rotation_deg=30.0))
+    fired = [trig.update(planar_T(0.1 * k, 0.0, 0.3)) for k in range(25)]
+    assert [k for k, f in enumerate(fired) if f] == [11, 22]  # travel 1.1 m > 1.0 m
+    assert trig.reason == "travel"
+
+
+def test_trigger_rotation_only() -> None:
+    trig = FrameTrigger(FrameTriggerConfig(max_travel_m=1.0, max_rotation_deg=30.0))
+    fired = [trig.update(planar_T(1.0, 2.0, np.radians(4.0 * k))) for k in range(20)]
+    assert [k for k, f in enumerate(fired) if f] == [8, 16]  # 32 deg > 30 deg
+    assert trig.reason == "rotation"
+
+
+def test_trigger_accumulates_travel_and_counts() -> None:
+    trig = FrameTrigger(FrameTriggerConfig(max_travel_m=1.0, max_observations=0))
+    xs = [0.0, 0.3, 0.0, 0.3, 0.0, 0.3]  # back and forth: 1.5 m travelled, 0.3 m displaced
+    fired = [trig.update(planar_T(x, 0.0, 0.0)) for x in xs]
+    assert fired == [False, False, False, False, True, False]
+    trig = FrameTrigger(FrameTriggerConfig(max_observations=3))
+    assert [trig.update(np.eye(4)) for _ in range(5)] == [False, False, False, True, False]
+    with pytest.raises(_ConfigError, match="max_rotation_deg"):
+        FrameTriggerConfig(max_rotation_deg=0.0)
+
+
+CAM_HEIGHT = 1.0
+
+
+def _T_base_cam(pitch_down_deg: float = 20.0) -> np.ndarray:
+    R_base_cam = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    a = np.radians(-pitch_down_deg)
+    Rp = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    return make_T(R_base_cam @ Rp, np.array([0.0, 0.0, CAM_HEIGHT]))
+
+
+def _square_cameras(side: float = 4.0, step: float = 0.5, extra: int = 1) -> list[np.ndarray]:
+    """Camera poses around a square in the hall, then ``extra`` frames re-driving the first edge."""
+    n, h, out = int(round(side / step)), side / 2, []
+    for edge in range(5):
+        for k in range(n if edge < 4 else extra):
+            s = k * step
+            x, y = [(-h + s, -h), (h, -h + s), (h - s, h), (-h, h - s), (-h + s, -h)][edge]
+            out.append(planar_T(x, y, edge * np.pi / 2) @ _T_base_cam())
+    return out
+
+
+@pytest.fixture(scope="module")
+def drifted_topomap():
+    """32 frames around a square + 1 revisiting frame 0; each frame's map is the analytic scene
+    seen from its true pose (valid near its own points only); anchors chained from odometry
+    with a heading bias of 0.25 deg per frame."""
+    scene = loop_scene()
+    gt = _square_cameras()
+    rng = np.random.default_rng(0)
+    obs = [render_points(scene, T, 2500, rng) for T in gt]
+    topo = TopoMap()
+    est = [gt[0].copy()]
+    for i in range(len(gt)):
+        if i:
+            err = se3_exp(
+                np.concatenate(
+                    [
+                        rng.normal(scale=np.radians(0.1), size=3) + [0.0, np.radians(0.25), 0.0],
+                        rng.normal(scale=0.005, size=3),
+                    ]  # fmt: skip
+                )
+            )
+            meas = inv_T(gt[i - 1]) @ gt[i] @ err
+            est.append(est[-1] @ meas)
+        frame = LocalFrame(i, est[i].copy(), AnalyticFrameMap(scene, gt[i], obs[i]))
+        topo.add_frame(frame)
+        if i:
+            topo.add_arc(i - 1, i, meas, ODOM_COV)
+    return topo, gt, obs, est
+
+
+def _anchor_ate(topo: TopoMap, gt: list[np.ndarray]) -> float:
+    return ate({k: topo.anchor(k) for k in topo.frame_ids}, gt)
+
+
+def test_descriptor_ranks_the_revisited_frames(drifted_topomap) -> None:
+    topo, gt, obs, est = drifted_topomap
+    cur = len(gt) - 1
+    d = describe(topo.frame(cur).points_world())
+    cands = topo.candidates(d, exclude_recent=4, top=3)
+    assert cands[0][0] in (0, 1) and cands[0][1] > 0.8
+    assert all(c not in range(cur - 3, cur + 1) for c, _ in cands)
+    far = topo.candidates(d, exclude_recent=4, top=40)
+    sims = dict(far)
+    assert sims[0] > sims[16] + 0.2  # the opposite side of the hall looks different
+
+
+def test_loop_closure_via_registration(drifted_topomap) -> None:
+    topo, gt, obs, est = drifted_topomap
+    cur = len(gt) - 1
+    anchors_before = {k: topo.anchor(k).copy() for k in topo.frame_ids}
+    before = _anchor_ate(topo, gt)
+    assert before > 0.1
+    cb = registration_callback(topo)
+    # wrong candidates (other sides of the square): verification rejects all of them
+    wrong = close_loop(topo, cur, obs[cur], est[cur], cb, candidate_ids=[8, 16, 24])
+    assert wrong.accepted is None and len(wrong.attempts) == 3
+    assert not any(a.accepted for a in wrong.attempts)
+    assert topo.arcs("loop") == []
+    assert all(np.array_equal(topo.anchor(k), anchors_before[k]) for k in topo.frame_ids)
+
+    res = close_loop(topo, cur, obs[cur], est[cur], cb, LoopClosureConfig(exclude_recent=4))
+    assert res.accepted in (0, 1), [a.reason for a in res.attempts]
+    i = res.accepted
+    et, er = pose_error(res.T_i_j, inv_T(gt[i]) @ gt[cur])
+    assert et < 0.01 and np.degrees(er) < 0.5
+    assert len(topo.arcs("loop")) == 1 and res.pose_graph.loop_inliers == [True]
+    after = _anchor_ate(topo, gt)
+    assert after < before / 4, (before, after)
+    # moving an anchor moved its map: frame points in world follow the optimised anchor
+    P, _, _ = unpack_feature_points(topo.frame(cur).map.feature_points())
+    pw = topo.frame(cur).points_world()
+    assert np.allclose(pw, P @ topo.anchor(cur)[:3, :3].T + topo.anchor(cur)[:3, 3], atol=1e-4)
+    box = topo.region(cur)
+    assert np.all(pw[:, 0] >= box[0] - 1e-5) and np.all(pw[:, 1] <= box[3] + 1e-5)
+    # routing now uses the loop arc instead of walking around the square
+    assert len(topo.route(0, cur)) <= 3
+
+
+def test_feature_point_protocol_and_errors() -> None:
+    class FP:  # the learned map's FeaturePoints snapshot shape
+        positions = np.zeros((4, 3), np.float32)
+        features = np.ones((4, 8), np.float32)
+        labels = np.zeros(4, np.int16)
+
+    P, F, L = unpack_feature_points(FP())
+    assert P.shape == (4, 3) and F.shape == (4, 8) and L.dtype == np.int64
+    with pytest.raises(ValueError, match="features"):
+        unpack_feature_points((np.zeros((4, 3)), np.zeros((3, 2)), np.zeros(4)))
+    topo = TopoMap()
+    m = AnalyticFrameMap(loop_scene(), np.eye(4), np.zeros((5, 3), np.float32))
+    topo.add_frame(LocalFrame(0, np.eye(4), m))
+    with pytest.raises(ValueError, match="already"):
+        topo.add_frame(LocalFrame(0, np.eye(4), m))
+    with pytest.raises(ValueError, match="unknown frame"):
+        topo.add_arc(0, 1, np.eye(4), ODOM_COV)
+    with pytest.raises(ValueError, match="empty"):
+        describe(np.zeros((0, 3)))

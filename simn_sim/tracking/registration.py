@@ -52,6 +52,7 @@ class RegistrationConfig(Config):
     min_valid_points: int = 100
     min_valid_fraction: float = 0.3
     max_final_rms: float = 0.03  # RMS over inliers (|r| < 3 c) must end below this (m)
+    inlier_threshold: float = 0.02  # fixed |r| bound (m) for the reported inlier_fraction
     min_inlier_fraction: float = 0.5
     max_rms_growth: float = 1.5  # final inlier RMS / initial must stay below this
     degeneracy_ratio: float = 1e-3  # min/max eigenvalue of J^T W J must exceed this
@@ -76,6 +77,7 @@ class RegistrationConfig(Config):
         require(0 <= self.min_valid_fraction <= 1, n, "min_valid_fraction", "must be in [0, 1]")
         require(0 <= self.min_inlier_fraction <= 1, n, "min_inlier_fraction", "must be in [0, 1]")
         require(self.max_final_rms > 0, n, "max_final_rms", "must be > 0")
+        require(self.inlier_threshold > 0, n, "inlier_threshold", "must be > 0")
         require(self.max_rms_growth >= 1, n, "max_rms_growth", "must be >= 1")
         require(0 < self.degeneracy_ratio < 1, n, "degeneracy_ratio", "must be in (0, 1)")
         require(self.fail_covariance > 0, n, "fail_covariance", "must be > 0")
@@ -101,6 +103,7 @@ class RegistrationResult:
     converged: bool  # the last step was below the tolerances
     eig_ratio: float  # min/max eigenvalue of J^T W J (centred); small = degenerate
     seconds: float
+    inlier_fraction: float = 0.0  # of ALL input points: valid and |r| < cfg.inlier_threshold
 
 
 def _to_numpy(x: Any) -> np.ndarray:
@@ -310,6 +313,19 @@ def register(
     Ad = adjoint(A_inv)
     cov = Ad @ cov_c @ Ad.T
     cov = 0.5 * (cov + cov.T)
+    frac = float(np.count_nonzero(ev["valid"] & (np.abs(ev["r"]) < cfg.inlier_threshold)) / n)
     return RegistrationResult(
-        T, cov, it, nv, n_inl, rms, rms0, True, "ok", converged, ratio, time.perf_counter() - t0
+        T,
+        cov,
+        it,
+        nv,
+        n_inl,
+        rms,
+        rms0,
+        True,
+        "ok",
+        converged,
+        ratio,
+        time.perf_counter() - t0,
+        frac,
     )

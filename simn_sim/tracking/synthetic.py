@@ -113,6 +113,45 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
     return T
 
 
+def _slab(e: np.ndarray, d: np.ndarray, c: np.ndarray, h: np.ndarray):
+    """Entry and exit ray parameters of an axis-aligned box (slab method), each (N,)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        t1 = (c - h - e) * inv
+        t2 = (c + h - e) * inv
+    t1 = np.where(np.isnan(t1), -np.inf, t1)
+    t2 = np.where(np.isnan(t2), np.inf, t2)
+    return np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
+
+
+def ray_cast(scene: AnalyticScene, e: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """First hit distance along unit rays ``e + t d`` (e: (3,), d: (N, 3)); inf for no hit.
+
+    Exact (analytic intersection with every primitive); the origin must be in free space.
+    """
+    t = np.full(len(d), np.inf)
+    if scene.room is not None:
+        c, h = (np.asarray(a, float) for a in scene.room)
+        _, tf = _slab(e, d, c, h)
+        t = np.minimum(t, np.where(tf > 0, tf, np.inf))
+    for c, h in scene.boxes:
+        tn, tf = _slab(e, d, np.asarray(c, float), np.asarray(h, float))
+        t = np.minimum(t, np.where((tn <= tf) & (tn > 0), tn, np.inf))
+    for c, r in scene.spheres:
+        oc = e - np.asarray(c, float)
+        b = d @ oc
+        disc = b * b - (oc @ oc - r * r)
+        root = -b - np.sqrt(np.maximum(disc, 0.0))
+        t = np.minimum(t, np.where((disc >= 0) & (root > 0), root, np.inf))
+    for nrm, off in scene.planes:
+        nrm = np.asarray(nrm, float) / np.linalg.norm(nrm)
+        dn = d @ nrm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tp = (off - e @ nrm) / dn
+        t = np.minimum(t, np.where((dn < 0) & (tp > 0), tp, np.inf))
+    return t
+
+
 def render_points(
     scene: AnalyticScene,
     T_world_cam: np.ndarray,
@@ -121,13 +160,11 @@ def render_points(
     hfov_deg: float = 69.0,
     vfov_deg: float = 42.5,
     max_range: float = 8.0,
-    tol: float = 1e-6,
-    max_steps: int = 400,
 ) -> np.ndarray:
     """Surface points seen by a camera: (M, 3) float32 in the OpenCV camera frame, M <= n_rays.
 
-    Rays through uniformly random pixels of a pinhole with the given fields of view are sphere
-    traced against the exact SDF; rays that leave ``max_range`` or do not converge are dropped.
+    Rays through uniformly random pixels of a pinhole with the given fields of view (D435i
+    defaults) are intersected exactly with the scene; rays beyond ``max_range`` are dropped.
     """
     tx, ty = np.tan(np.radians(hfov_deg) / 2), np.tan(np.radians(vfov_deg) / 2)
     d = np.stack(
@@ -135,24 +172,71 @@ def render_points(
     )
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     R, e = T_world_cam[:3, :3], T_world_cam[:3, 3]
-    dw = d @ R.T
-    t = np.zeros(n_rays)
-    active = np.ones(n_rays, dtype=bool)
-    hit = np.zeros(n_rays, dtype=bool)
-    for _ in range(max_steps):
-        ia = np.flatnonzero(active)
-        if ia.size == 0:
-            break
-        s = scene.sdf(e + t[ia, None] * dw[ia])
-        done = s < tol
-        hit[ia[done]] = True
-        t[ia[~done]] += s[~done]
-        gone = t[ia] > max_range
-        active[ia[done | gone]] = False
-    pts = d[hit] * t[hit, None]
-    return pts.astype(np.float32)
+    t = ray_cast(scene, np.asarray(e, float), d @ R.T)
+    hit = t <= max_range
+    return (d[hit] * t[hit, None]).astype(np.float32)
 
 
 def world_points(points_cam: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
     """Convenience: camera-frame points to world (float32)."""
     return transform_points(T_world_cam, points_cam.astype(np.float64)).astype(np.float32)
+
+
+def loop_scene() -> AnalyticScene:
+    """An 8 x 8 x 3 m hall (floor z = 0) with asymmetric furniture, for loops around its centre."""
+    return AnalyticScene(
+        room=(np.array([0.0, 0.0, 1.5]), np.array([4.0, 4.0, 1.5])),
+        boxes=(
+            (np.array([0.0, 0.0, 0.6]), np.array([0.8, 0.5, 0.6])),  # central block
+            (np.array([3.3, -3.0, 0.4]), np.array([0.5, 0.6, 0.4])),
+            (np.array([3.4, 1.5, 0.9]), np.array([0.4, 1.0, 0.9])),  # shelf
+            (np.array([-3.0, 3.2, 0.35]), np.array([0.8, 0.4, 0.35])),  # desk
+            (np.array([-3.4, -1.0, 1.0]), np.array([0.4, 0.4, 1.0])),  # column-ish
+            (np.array([1.0, 3.4, 0.25]), np.array([0.3, 0.3, 0.25])),
+        ),
+        spheres=(
+            (np.array([-1.5, -3.2, 0.45]), 0.45),
+            (np.array([2.2, 0.8, 1.2]), 0.3),
+        ),
+    )
+
+
+class AnalyticFrameMap:
+    """A per-frame map backed by an analytic scene, in the frame's (true) anchor coordinates.
+
+    Implements the :class:`~simn_sim.tracking.localframes.FrameMap` protocol for tests: the SDF is
+    exact but, like a learned map, only *valid* within ``support_radius`` of the frame's own
+    feature points (what the frame observed); feature points are given surface points (anchor
+    frame) with features ``sin(W p_world)`` (a fixed function of the world position, so
+    revisits see the same features).
+    """
+
+    def __init__(
+        self,
+        scene: AnalyticScene,
+        T_world_anchor_true: np.ndarray,
+        points_anchor: np.ndarray,
+        feature_dim: int = 8,
+        labels: np.ndarray | None = None,
+        support_radius: float = 0.2,
+    ) -> None:
+        from scipy.spatial import cKDTree
+
+        self.scene = scene
+        self.T = np.asarray(T_world_anchor_true, dtype=np.float64)
+        self.P = np.asarray(points_anchor, dtype=np.float32).reshape(-1, 3)
+        W = np.random.default_rng(12345).normal(size=(feature_dim, 3)) * 2.0
+        Pw = transform_points(self.T, self.P.astype(np.float64))
+        self.F = np.sin(Pw @ W.T).astype(np.float32)
+        self.L = np.zeros(len(self.P), np.int64) if labels is None else np.asarray(labels)
+        self.support_radius = float(support_radius)
+        self._tree = cKDTree(self.P.astype(np.float64))
+
+    def feature_points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.P, self.F, self.L
+
+    def sdf_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = np.asarray(points, dtype=np.float64)
+        s, g, v = self.scene.sdf_and_grad(transform_points(self.T, p))
+        dist, _ = self._tree.query(p, k=1, distance_upper_bound=self.support_radius)
+        return s, g @ self.T[:3, :3], v & np.isfinite(dist)

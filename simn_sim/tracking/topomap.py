@@ -1,0 +1,441 @@
+"""Topological map of local frames (paper: "Building Topological Map").
+
+Nodes are local frames: anchor pose ``T_world_anchor`` (4, 4), the frame's map, a descriptor, a
+2-D region (world x/y bounding box of its feature points) and a point count. Arcs hold the
+relative pose ``T_i_j`` between two frames with a (6, 6) covariance (gtsam convention, see
+:mod:`simn_sim.tracking.posegraph`) and a ``weight`` = metric length of the arc for routing.
+
+Descriptor (:class:`FrameDescriptor`) pooled from a frame's key points (world coordinates through
+the anchor) and their learned features, in three parts:
+
+* ``occupancy``: a spatial occupancy signature -- the points' mass on a world-fixed x/y grid
+  (cell ``occupancy_cell`` m, bilinear splatting, unit L2 norm, stored sparsely). Two frames
+  that observed the same stretch of the world share cells even with anchor drift of a fraction
+  of a cell; frames that looked at different walls do not. This is the discriminative part.
+* ``shape``: a gravity-aligned, yaw-invariant shape signature -- histograms of point heights and
+  of horizontal distances from the points' centroid, each square-rooted (cosine = Bhattacharyya
+  coefficient). Cheap, drift-insensitive, weakly discriminative.
+* ``feature`` (when the map has learned features): mean and standard deviation of the per-point
+  feature vectors, centred and normalised.
+
+Similarity is the weighted mean (``*_weight``) of the cosines of the parts present in both.
+
+Revisits: :func:`close_loop` ranks earlier frames by descriptor similarity and accepts one only
+after registration of the current observation against that frame's map succeeds (and the
+correction it implies stays within the drift budget); then the loop arc is added and the anchors
+re-optimised ("because points live in frame coordinates, moving an anchor moves its map").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import networkx as nx
+import numpy as np
+
+from simn_sim.config import Config, require
+from simn_sim.geometry.se3 import inv_T, pose_error, rot_z, transform_points
+from simn_sim.tracking.lie import adjoint, check_pose
+from simn_sim.tracking.localframes import FrameMap, LocalFrame, unpack_feature_points
+from simn_sim.tracking.posegraph import (
+    PoseGraphConfig,
+    PoseGraphResult,
+    check_covariance,
+    optimize_pose_graph,
+)
+from simn_sim.tracking.registration import RegistrationConfig, RegistrationResult, register
+
+
+@dataclasses.dataclass(frozen=True)
+class DescriptorConfig(Config):
+    occupancy_cell: float = 1.0  # m, world x/y grid of the occupancy signature
+    height_range: tuple[float, float] = (-0.5, 3.0)  # world z covered by the height histogram
+    height_bins: int = 16
+    radius_max: float = 5.0  # horizontal distance covered by the radial histogram
+    radius_bins: int = 16
+    occupancy_weight: float = 1.0
+    shape_weight: float = 0.5
+    feature_weight: float = 0.5
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.occupancy_cell > 0, n, "occupancy_cell", "must be > 0")
+        require(self.height_range[1] > self.height_range[0], n, "height_range", "must increase")
+        require(self.height_bins >= 2 and self.radius_bins >= 2, n, "height_bins", "need >= 2 bins")
+        require(self.radius_max > 0, n, "radius_max", "must be > 0")
+        for f in ("occupancy_weight", "shape_weight", "feature_weight"):
+            require(getattr(self, f) >= 0, n, f, "must be >= 0")
+        require(
+            self.occupancy_weight + self.shape_weight > 0,
+            n,
+            "occupancy_weight",
+            "occupancy_weight + shape_weight must be > 0",
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameDescriptor:
+    """occupancy: (cells (M,) int64 packed grid keys, weights (M,) unit norm);
+    shape: (height_bins + radius_bins,) unit vector; feature: (2 d,) unit vector or None."""
+
+    cells: np.ndarray
+    weights: np.ndarray
+    shape: np.ndarray
+    feature: np.ndarray | None = None
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 0 else v
+
+
+_OFF = 1 << 20
+
+
+def _occupancy(xy: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    g = xy / cell - 0.5  # cell centres at (i + 0.5) * cell
+    i0 = np.floor(g).astype(np.int64)
+    f = g - i0
+    keys, vals = [], []
+    for dx in (0, 1):
+        for dy in (0, 1):
+            w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
+            keys.append((i0[:, 0] + dx + _OFF) * (2 * _OFF) + (i0[:, 1] + dy + _OFF))
+            vals.append(w)
+    k, inv = np.unique(np.concatenate(keys), return_inverse=True)
+    v = np.bincount(inv, weights=np.concatenate(vals), minlength=len(k))
+    return k, _unit(v)
+
+
+def describe(
+    points_world: np.ndarray,
+    features: np.ndarray | None = None,
+    cfg: DescriptorConfig | None = None,
+) -> FrameDescriptor:
+    """Descriptor of (N, 3) world-frame key points and optional (N, d) features."""
+    cfg = cfg or DescriptorConfig()
+    P = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    if len(P) == 0:
+        raise ValueError("cannot describe an empty point set")
+    if not np.isfinite(P).all():
+        raise ValueError("points_world contains NaN or inf")
+    cells, weights = _occupancy(P[:, :2], cfg.occupancy_cell)
+    zh, _ = np.histogram(P[:, 2], bins=cfg.height_bins, range=cfg.height_range)
+    r = np.linalg.norm(P[:, :2] - P[:, :2].mean(axis=0), axis=1)
+    rh, _ = np.histogram(
+        np.minimum(r, cfg.radius_max - 1e-9), bins=cfg.radius_bins, range=(0, cfg.radius_max)
+    )
+    shape = np.concatenate([np.sqrt(zh / max(zh.sum(), 1)), np.sqrt(rh / max(rh.sum(), 1))])
+    feat = None
+    if features is not None and np.asarray(features).size:
+        F = np.asarray(features, dtype=np.float64).reshape(len(P), -1)
+        v = np.concatenate([F.mean(axis=0), F.std(axis=0)])
+        feat = _unit(v - v.mean()) if v.std() > 0 else None
+    return FrameDescriptor(cells, weights, _unit(shape), feat)
+
+
+def similarity(
+    a: FrameDescriptor, b: FrameDescriptor, cfg: DescriptorConfig | None = None
+) -> float:
+    """Weighted mean of the cosine similarities of the parts present in both descriptors."""
+    cfg = cfg or DescriptorConfig()
+    _, ia, ib = np.intersect1d(a.cells, b.cells, assume_unique=True, return_indices=True)
+    occ = float(a.weights[ia] @ b.weights[ib])
+    s = cfg.occupancy_weight * occ + cfg.shape_weight * float(a.shape @ b.shape)
+    w = cfg.occupancy_weight + cfg.shape_weight
+    if (
+        cfg.feature_weight > 0
+        and a.feature is not None
+        and b.feature is not None
+        and a.feature.shape == b.feature.shape
+    ):
+        s += cfg.feature_weight * float(a.feature @ b.feature)
+        w += cfg.feature_weight
+    return s / w
+
+
+class TopoMap:
+    """networkx graph of local frames; see the module docstring."""
+
+    def __init__(self, descriptor_cfg: DescriptorConfig | None = None) -> None:
+        self.graph = nx.Graph()
+        self.desc_cfg = descriptor_cfg or DescriptorConfig()
+        self._order: list[int] = []  # frame ids in the order they were added
+
+    # ------------------------------------------------------------------ nodes
+    def add_frame(self, frame: LocalFrame, descriptor: FrameDescriptor | None = None) -> int:
+        """Add a local frame as a node; its descriptor is computed from its map if not given."""
+        fid = int(frame.frame_id)
+        if fid in self.graph:
+            raise ValueError(f"frame {fid} is already in the map")
+        frame.T_world_anchor = check_pose(frame.T_world_anchor, "T_world_anchor")
+        self.graph.add_node(fid, frame=frame)
+        self._order.append(fid)
+        self.refresh(fid, descriptor)
+        return fid
+
+    def refresh(self, fid: int, descriptor: FrameDescriptor | None = None) -> None:
+        """Recompute a frame's region, point count (and descriptor) after its map or anchor changed."""
+        node = self.graph.nodes[fid]
+        frame: LocalFrame = node["frame"]
+        P, F, _ = unpack_feature_points(frame.map.feature_points())
+        Pw = transform_points(frame.T_world_anchor, P.astype(np.float64))
+        node["n_points"] = len(P)
+        if len(P):
+            node["region"] = np.concatenate([Pw[:, :2].min(axis=0), Pw[:, :2].max(axis=0)])
+        else:
+            node["region"] = np.full(4, np.nan)
+        if descriptor is not None:
+            node["descriptor"] = descriptor
+        elif len(P):
+            node["descriptor"] = describe(Pw, F, self.desc_cfg)
+        else:
+            node["descriptor"] = None
+
+    def frame(self, fid: int) -> LocalFrame:
+        return self.graph.nodes[fid]["frame"]
+
+    def anchor(self, fid: int) -> np.ndarray:
+        return self.frame(fid).T_world_anchor
+
+    def region(self, fid: int) -> np.ndarray:
+        """(4,) world bounding box ``[xmin, ymin, xmax, ymax]`` of the frame's points."""
+        return self.graph.nodes[fid]["region"]
+
+    def descriptor(self, fid: int) -> FrameDescriptor | None:
+        return self.graph.nodes[fid]["descriptor"]
+
+    @property
+    def frame_ids(self) -> list[int]:
+        return list(self._order)
+
+    # ------------------------------------------------------------------ arcs
+    def _add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray, kind: str) -> None:
+        for k in (i, j):
+            if k not in self.graph:
+                raise ValueError(f"unknown frame {k}")
+        if i == j:
+            raise ValueError("an arc needs two different frames")
+        T = check_pose(T_i_j, "T_i_j")
+        C = check_covariance(cov)
+        meas = (int(i), int(j), T, C, kind)
+        length = float(np.linalg.norm(T[:3, 3]))
+        if self.graph.has_edge(i, j):
+            e = self.graph.edges[i, j]
+            e["measurements"].append(meas)
+            e["kinds"].add(kind)
+        else:
+            self.graph.add_edge(i, j, measurements=[meas], kinds={kind}, weight=length)
+
+    def add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> None:
+        """Odometry arc: pose of frame ``j`` in frame ``i`` with (6, 6) covariance."""
+        self._add_arc(i, j, T_i_j, cov, "odom")
+
+    def add_loop(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> None:
+        """Loop arc (a verified revisit); call :meth:`optimize` afterwards."""
+        self._add_arc(i, j, T_i_j, cov, "loop")
+
+    def arcs(self, kind: str | None = None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+        out = []
+        for _, _, e in self.graph.edges(data=True):
+            for i, j, T, C, k in e["measurements"]:
+                if kind is None or k == kind:
+                    out.append((i, j, T, C))
+        return out
+
+    def relative_pose(self, i: int, j: int) -> np.ndarray:
+        """Current estimate of ``T_i_j`` from the anchors."""
+        return inv_T(self.anchor(i)) @ self.anchor(j)
+
+    def route(self, i: int, j: int) -> list[int]:
+        """Shortest sequence of frames from ``i`` to ``j`` by arc length."""
+        return nx.shortest_path(self.graph, i, j, weight="weight")
+
+    # ------------------------------------------------------------------ revisits
+    def candidates(
+        self,
+        descriptor: FrameDescriptor,
+        exclude_recent: int = 3,
+        top: int = 3,
+        min_sim: float = 0.0,
+        exclude: Iterable[int] = (),
+    ) -> list[tuple[int, float]]:
+        """Earlier frames most similar to ``descriptor``: ``[(frame_id, similarity)]``, best first.
+
+        The ``exclude_recent`` most recently added frames (and ``exclude``) are skipped: the
+        current frame and its neighbours are not revisits.
+        """
+        skip = set(exclude)
+        if exclude_recent > 0:
+            skip |= set(self._order[-exclude_recent:])
+        out = []
+        for fid in self._order:
+            d = self.graph.nodes[fid]["descriptor"]
+            if fid in skip or d is None:
+                continue
+            s = similarity(descriptor, d, self.desc_cfg)
+            if s >= min_sim:
+                out.append((fid, s))
+        out.sort(key=lambda x: -x[1])
+        return out[:top]
+
+    def optimize(self, cfg: PoseGraphConfig | None = None) -> PoseGraphResult:
+        """Pose-graph optimisation of all anchors (gtsam); updates anchors and regions.
+
+        The first frame added is held fixed. Frames not connected to it are left untouched.
+        """
+        if not self._order:
+            raise ValueError("empty map")
+        root = self._order[0]
+        comp = nx.node_connected_component(self.graph, root)
+        anchors = {k: self.anchor(k) for k in comp}
+        odom = [a for a in self.arcs("odom") if a[0] in comp]
+        loops = [a for a in self.arcs("loop") if a[0] in comp]
+        res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root)
+        for k, T in res.anchors.items():
+            self.frame(k).T_world_anchor = T
+            self.refresh(k, self.descriptor(k))
+        return res
+
+
+# ---------------------------------------------------------------------- loop closure
+RegisterFn = Callable[[int, np.ndarray, np.ndarray], RegistrationResult]
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopClosureConfig(Config):
+    exclude_recent: int = 3
+    top: int = 3
+    min_similarity: float = 0.5
+    max_correction_m: float = 1.0  # drift budget: registration may move the guess this far...
+    max_correction_deg: float = 30.0  # ... and turn it this much, no more
+    yaw_search_deg: tuple[float, ...] = (0.0, 7.5, -7.5, 15.0, -15.0)  # extra starting headings
+    min_inlier_fraction: float = 0.85  # of the observation within 2 cm of the candidate's surface
+    good_enough_fraction: float = 0.95  # stop the yaw search at a result this good
+    cov_floor_rot: float = 0.002  # rad, added in quadrature to the registration covariance
+    cov_floor_trans: float = 0.005  # m
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.exclude_recent >= 0, n, "exclude_recent", "must be >= 0")
+        require(self.top >= 1, n, "top", "must be >= 1")
+        require(-1 <= self.min_similarity <= 1, n, "min_similarity", "must be in [-1, 1]")
+        require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
+        require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
+        require(self.cov_floor_rot > 0 and self.cov_floor_trans > 0, n, "cov_floor_rot", "> 0")
+        require(len(self.yaw_search_deg) >= 1, n, "yaw_search_deg", "needs at least one heading")
+        require(0 < self.min_inlier_fraction <= 1, n, "min_inlier_fraction", "must be in (0, 1]")
+        require(
+            self.min_inlier_fraction <= self.good_enough_fraction <= 1,
+            n, "good_enough_fraction", "must be in [min_inlier_fraction, 1]",
+        )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopAttempt:
+    frame_id: int
+    similarity: float
+    accepted: bool
+    reason: str
+    T_frame_cam: np.ndarray | None  # registered camera pose in the candidate frame
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopClosureResult:
+    accepted: int | None  # the frame the revisit was accepted against, or None
+    attempts: list[LoopAttempt]
+    T_i_j: np.ndarray | None  # loop arc (accepted frame -> current frame)
+    pose_graph: PoseGraphResult | None
+
+
+def registration_callback(
+    topo: TopoMap, cfg: RegistrationConfig | None = None, points_as: str = "numpy"
+) -> RegisterFn:
+    """Default callback: :func:`register` against the candidate frame's own ``sdf_and_grad``."""
+
+    def fn(fid: int, points_cam: np.ndarray, T_frame_cam_init: np.ndarray) -> RegistrationResult:
+        m: FrameMap = topo.frame(fid).map
+        return register(points_cam, m.sdf_and_grad, T_frame_cam_init, cfg, points_as=points_as)
+
+    return fn
+
+
+def close_loop(
+    topo: TopoMap,
+    current: int,
+    points_cam: np.ndarray,
+    T_world_cam: np.ndarray,
+    register_fn: RegisterFn,
+    cfg: LoopClosureConfig | None = None,
+    descriptor: FrameDescriptor | None = None,
+    candidate_ids: Iterable[int] | None = None,
+    pose_graph_cfg: PoseGraphConfig | None = None,
+) -> LoopClosureResult:
+    """Check whether the camera revisits an earlier frame; on success add the loop and optimise.
+
+    current: id of the frame being built (its anchor and the tracked ``T_world_cam`` give the
+    camera pose in it). points_cam: (N, 3) the current observation, camera frame. Candidates come
+    from descriptor similarity (``descriptor`` defaults to one computed from ``points_cam``), or
+    from ``candidate_ids``. A candidate is accepted when ``register_fn(fid, points_cam,
+    T_fid_cam_guess)`` succeeds and moves the guess by at most the drift budget.
+    """
+    cfg = cfg or LoopClosureConfig()
+    T_world_cam = check_pose(T_world_cam, "T_world_cam")
+    T_cur_cam = inv_T(topo.anchor(current)) @ T_world_cam
+    if candidate_ids is None:
+        if descriptor is None:
+            pw = transform_points(T_world_cam, np.asarray(points_cam, dtype=np.float64))
+            descriptor = describe(pw, None, topo.desc_cfg)
+        cands = topo.candidates(
+            descriptor, cfg.exclude_recent, cfg.top, cfg.min_similarity, exclude=[current]
+        )
+    else:
+        cands = [(int(c), float("nan")) for c in candidate_ids if int(c) != current]
+    attempts: list[LoopAttempt] = []
+    for fid, sim in cands:
+        A = topo.anchor(fid)
+        guess = inv_T(A) @ T_world_cam
+        best, whys = None, []
+        for yaw in cfg.yaw_search_deg:
+            # turn the guess about the world vertical through the camera centre (drift is
+            # mostly heading for a ground robot; it is what leaves the registration basin first)
+            Tw = T_world_cam.copy()
+            Tw[:3, :3] = rot_z(np.radians(yaw)) @ Tw[:3, :3]
+            res = register_fn(fid, points_cam, inv_T(A) @ Tw)
+            if not res.success:
+                whys.append(f"{yaw:+.1f} deg: registration: {res.reason}")
+                continue
+            dt, dr = pose_error(guess, res.pose)
+            if dt > cfg.max_correction_m or np.degrees(dr) > cfg.max_correction_deg:
+                whys.append(f"{yaw:+.1f} deg: correction {dt:.2f} m / {np.degrees(dr):.1f} deg")
+                continue
+            frac = getattr(res, "inlier_fraction", 1.0)
+            if frac < cfg.min_inlier_fraction:
+                whys.append(f"{yaw:+.1f} deg: only {frac:.2f} of the points fit")
+                continue
+            if best is None or frac > best[1]:
+                best = (res, frac)
+            if frac >= cfg.good_enough_fraction:
+                break
+        if best is None:
+            attempts.append(LoopAttempt(fid, sim, False, "; ".join(whys), None))
+            continue
+        res = best[0]
+        attempts.append(LoopAttempt(fid, sim, True, "ok", res.pose))
+        T_i_j = res.pose @ inv_T(T_cur_cam)  # current frame's anchor in the candidate frame
+        Ad = adjoint(T_cur_cam)  # camera-frame covariance -> covariance of T_i_j
+        cov = Ad @ res.covariance @ Ad.T
+        cov += np.diag([cfg.cov_floor_rot**2] * 3 + [cfg.cov_floor_trans**2] * 3)
+        topo.add_loop(fid, current, T_i_j, 0.5 * (cov + cov.T))
+        pg = topo.optimize(pose_graph_cfg)
+        return LoopClosureResult(fid, attempts, T_i_j, pg)
+    return LoopClosureResult(None, attempts, None, None)
+
+
+def as_frame_map(obj: Any) -> FrameMap:
+    """Check that ``obj`` implements :class:`FrameMap` (raises TypeError otherwise)."""
+    if not isinstance(obj, FrameMap):
+        raise TypeError(f"{type(obj).__name__} lacks feature_points() / sdf_and_grad()")
+    return obj
