@@ -190,3 +190,19 @@ def test_bad_depth_png(tmp_path: Path) -> None:
     name.unlink()
     with pytest.raises(TumFormatError, match=name.name):
         read_tum(d, camera="fr1")
+
+
+@needs_real
+def test_depth_odometry_on_real_frames() -> None:
+    """Frame-to-frame depth odometry over the 9 real frames, scored by the TUM-style ATE."""
+    from simn_sim.eval.trajectory import ate_rpe
+    from simn_sim.tracking.odometry import depth_odometry
+
+    seq = read_tum(REAL, camera="fr1")
+    frames = list(seq)
+    traj, results = depth_odometry(frames, seq.intrinsics, frames[0].T_world_cam)
+    assert len(traj) == 9 and all(r.success for r in results)
+    m = ate_rpe(traj, [(f.timestamp, f.T_world_cam) for f in frames])
+    # measured: ATE 2.5 mm, RPE 3.9 mm / 0.38 deg per frame
+    assert m["n_matched"] == 9 and m["ate_rmse_m"] < 0.008
+    assert m["rpe_trans_rmse_m"] < 0.008 and m["rpe_rot_rmse_deg"] < 0.8

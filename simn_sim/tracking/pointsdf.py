@@ -19,8 +19,15 @@ from simn_sim.semantics import estimate_normals, normals_from_organized
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Indices of one point per occupied voxel (the first), for (N, 3) points."""
-    keys = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64)
-    _, idx = np.unique(keys, axis=0, return_index=True)
+    if voxel <= 0:
+        raise ValueError(f"voxel must be > 0, got {voxel}")
+    g = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64)
+    if len(g) == 0:
+        return np.zeros(0, np.int64)
+    g -= g.min(axis=0)
+    span = g.max(axis=0) + 1
+    keys = (g[:, 0] * span[1] + g[:, 1]) * span[2] + g[:, 2]  # exact while span^3 < 2^63
+    _, idx = np.unique(keys, return_index=True)
     return np.sort(idx)
 
 
