@@ -1,0 +1,93 @@
+"""Losses of the mapper: BCE on sigmoid(sdf / sigma), Eikonal, and EWC with a diagonal Fisher."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+def bce_sdf_loss(pred: torch.Tensor, label: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Mean BCE between ``sigmoid(pred / sigma)`` and ``sigmoid(label / sigma)``."""
+    return F.binary_cross_entropy_with_logits(pred / sigma, torch.sigmoid(label / sigma))
+
+
+def eikonal_loss(grad: torch.Tensor) -> torch.Tensor:
+    """Mean of ``(||grad_p F|| - 1)^2`` over (N, 3) gradients."""
+    return ((grad.norm(dim=1) - 1.0) ** 2).mean()
+
+
+class EWC:
+    """Elastic weight consolidation on a module's parameters.
+
+    ``penalty = sum_i G_i (theta_i - theta*_i)^2`` with ``G`` the diagonal empirical Fisher
+    (mean of squared per-sample gradients of the data loss) accumulated over consolidations,
+    and ``theta*`` the parameters at the latest consolidation.
+    """
+
+    def __init__(self) -> None:
+        self.fisher: dict[str, torch.Tensor] | None = None
+        self.anchor: dict[str, torch.Tensor] | None = None
+        self.count = 0
+
+    @property
+    def active(self) -> bool:
+        return self.fisher is not None
+
+    def penalty(self, module: nn.Module) -> torch.Tensor:
+        if self.fisher is None or self.anchor is None:
+            return torch.zeros(())
+        total = None
+        for name, p in module.named_parameters():
+            t = (self.fisher[name] * (p - self.anchor[name]) ** 2).sum()
+            total = t if total is None else total + t
+        return total
+
+    def consolidate(self, module: nn.Module, fisher: dict[str, torch.Tensor]) -> None:
+        """Add ``fisher`` to the accumulated one and anchor at the current parameters."""
+        if self.fisher is None:
+            self.fisher = {k: v.detach().clone() for k, v in fisher.items()}
+        else:
+            self.fisher = {k: self.fisher[k] + fisher[k].detach() for k in self.fisher}
+        self.anchor = {k: p.detach().clone() for k, p in module.named_parameters()}
+        self.count += 1
+
+    def state_dict(self) -> dict:
+        if self.fisher is None or self.anchor is None:
+            return {"count": self.count}
+        return {"count": self.count, "fisher": self.fisher, "anchor": self.anchor}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.count = int(state.get("count", 0))
+        self.fisher = state.get("fisher")
+        self.anchor = state.get("anchor")
+
+
+def diagonal_fisher(
+    module: nn.Module,
+    inputs: tuple[torch.Tensor, ...],
+    labels: torch.Tensor,
+    loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    chunk: int = 1024,
+) -> dict[str, torch.Tensor]:
+    """Mean squared per-sample gradient of ``loss_fn(module(*inputs_i), label_i)`` w.r.t. each
+    parameter (empirical diagonal Fisher), with ``torch.func`` (vmap over samples)."""
+    from torch.func import functional_call, grad, vmap
+
+    params = {k: v.detach() for k, v in module.named_parameters()}
+
+    def one(p: dict, *args: torch.Tensor) -> torch.Tensor:
+        *xs, y = args
+        out = functional_call(module, p, tuple(x[None] for x in xs))
+        return loss_fn(out, y[None])
+
+    g_fn = vmap(grad(one), in_dims=(None, *([0] * (len(inputs) + 1))))
+    acc = {k: torch.zeros_like(v) for k, v in params.items()}
+    n = labels.shape[0]
+    for s in range(0, n, chunk):
+        gs = g_fn(params, *(x[s : s + chunk] for x in inputs), labels[s : s + chunk])
+        for k in acc:
+            acc[k] += (gs[k] ** 2).sum(0)
+    return {k: v / max(n, 1) for k, v in acc.items()}

@@ -1,0 +1,559 @@
+"""The spatial-implicit map of one local frame: neural points + decoder, trained continually.
+
+:class:`ImplicitMap` owns a :class:`~simn_sim.mapping.neural_points.NeuralPointMap` (in the
+map's own anchor coordinates) and a :class:`~simn_sim.mapping.decoder.Decoder` (which may be
+shared with, or copied from, another map). Per frame it inserts neural points and draws ray
+samples; every ``train_every``-th frame it runs the adaptive training loop on the new samples
+mixed with a bounded replay pool, with the loss
+``lambda_b BCE + lambda_e Eikonal + lambda_EWC EWC``. Queries return the SDF, its gradient in
+map coordinates and a validity mask (a point with no neural point within the search radius has
+no SDF: NaN and ``valid = False``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simn_sim.geometry.camera import Intrinsics
+from simn_sim.mapping.config import MapperConfig
+from simn_sim.mapping.decoder import Decoder
+from simn_sim.mapping.losses import EWC, bce_sdf_loss, diagonal_fisher, eikonal_loss
+from simn_sim.mapping.neural_points import FeaturePoints, NeuralPointMap, idw_interpolate
+from simn_sim.mapping.perception import EmptyFrameError, rgbd_to_points, voxel_downsample
+from simn_sim.mapping.replay import ReplayPool
+from simn_sim.mapping.sampling import sample_rays
+
+MAP_FORMAT = "simn-sim/implicit-map"
+MAP_VERSION = 1
+
+
+class MapFileError(ValueError):
+    """A map file is missing, corrupt, or not a simn-sim implicit map."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainResult:
+    """Outcome of one call of the adaptive training loop."""
+
+    iterations: int
+    converged: bool  # stopped on the windowed loss change (not the cap)
+    final_loss: float  # mean total loss over the last window
+    n_samples: int  # valid samples used (new + replayed)
+    n_replayed: int
+    seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameResult:
+    """Outcome of integrating one frame."""
+
+    frame_index: int
+    n_points: int  # after dropping non-finite points and down-sampling
+    n_dropped: int  # non-finite input points
+    n_new_neural_points: int
+    n_samples: int
+    train: TrainResult | None  # None when this frame did not trigger training
+
+
+@dataclasses.dataclass
+class SdfQuery:
+    """sdf (N,), grad (N, 3) or None, valid (N,) bool; numpy or torch like the input."""
+
+    sdf: np.ndarray | torch.Tensor
+    grad: np.ndarray | torch.Tensor | None
+    valid: np.ndarray | torch.Tensor
+
+
+def check_pose(T: np.ndarray, name: str = "T_map_cam") -> np.ndarray:
+    """Validate a 4x4 rigid transform; returns it as float64."""
+    if isinstance(T, torch.Tensor):
+        T = T.detach().cpu().numpy()
+    if not isinstance(T, np.ndarray):
+        raise TypeError(f"{name} must be a 4x4 numpy array, got {type(T).__name__}")
+    if T.shape != (4, 4):
+        raise ValueError(f"{name} must have shape (4, 4), got {T.shape}")
+    if not np.issubdtype(T.dtype, np.floating):
+        raise TypeError(f"{name} must be a float array, got dtype {T.dtype}")
+    T = T.astype(np.float64)
+    if not np.isfinite(T).all():
+        raise ValueError(f"{name} contains NaN or inf")
+    R = T[:3, :3]
+    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(
+        R @ R.T, np.eye(3), atol=1e-4
+    ):
+        raise ValueError(f"{name} is not a rigid transform (bottom row or rotation part invalid)")
+    if np.linalg.det(R) < 0:
+        raise ValueError(f"{name} has a reflection (det R < 0)")
+    return T
+
+
+def _as_float_points(points: np.ndarray | torch.Tensor, name: str = "points") -> torch.Tensor:
+    if isinstance(points, np.ndarray):
+        if not np.issubdtype(points.dtype, np.floating):
+            raise TypeError(f"{name} must be float32 or float64, got dtype {points.dtype}")
+        t = torch.from_numpy(np.ascontiguousarray(points))
+    elif isinstance(points, torch.Tensor):
+        if not points.is_floating_point():
+            raise TypeError(f"{name} must be a floating-point tensor, got {points.dtype}")
+        t = points
+    else:
+        raise TypeError(
+            f"{name} must be a numpy array or torch tensor, got {type(points).__name__}"
+        )
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {tuple(t.shape)}")
+    return t
+
+
+class ImplicitMap:
+    """Neural points + decoder of one local frame, in that frame's (anchor) coordinates.
+
+    Parameters
+    ----------
+    cfg: the mapper config (validated).
+    decoder: share an existing decoder (e.g. the previous frame's, or ``other.decoder.copy()``);
+        a new one is created when None.
+    generator: torch RNG for feature init, ray sampling, batches and replay; by default one
+        seeded with ``cfg.seed``.
+    """
+
+    def __init__(
+        self,
+        cfg: MapperConfig | None = None,
+        decoder: Decoder | None = None,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        self.cfg = cfg or MapperConfig()
+        # Adam's second moments of tiny gradients underflow to denormals, which make CPU
+        # arithmetic ~10x slower; flushing them to zero changes no result that matters.
+        torch.set_flush_denormal(True)
+        self.device = torch.device(self.cfg.device)
+        if generator is None:
+            generator = torch.Generator(device=self.device).manual_seed(self.cfg.seed)
+        self.generator = generator
+        self.points = NeuralPointMap(self.cfg.points, self.device, generator)
+        if decoder is None:
+            decoder = Decoder(self.cfg.decoder, self.cfg.points.feature_dim, generator).to(
+                self.device
+            )
+        elif decoder.feature_dim != self.cfg.points.feature_dim:
+            raise ValueError(
+                f"decoder takes features of dim {decoder.feature_dim}, map has {self.cfg.points.feature_dim}"
+            )
+        self.decoder = decoder
+        self.ewc = EWC()
+        tc = self.cfg.training
+        self.replay = ReplayPool(tc.replay_capacity, self.device)
+        self._recent = ReplayPool(tc.fisher_samples, self.device)  # since the last consolidation
+        self._pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        self._n_pending = 0
+        self.frame_count = 0
+        self.last_train: TrainResult | None = None
+
+    # ------------------------------------------------------------------ integration
+    def integrate_frame(
+        self,
+        points_cam: np.ndarray | torch.Tensor,
+        T_map_cam: np.ndarray,
+        colors: np.ndarray | torch.Tensor | None = None,
+        labels: np.ndarray | torch.Tensor | None = None,
+        train: bool | None = None,
+    ) -> FrameResult:
+        """Add one frame of camera-frame points seen from pose ``T_map_cam``.
+
+        points_cam: (N, 3) float, OpenCV camera frame. colors: (N, 3) in [0, 1] (float) or
+        uint8. labels: (N,) integer semantic labels (0 unknown). Non-finite points are dropped.
+        ``train``: force (True) or skip (False) training; by default every ``train_every``-th
+        frame trains. Raises :class:`EmptyFrameError` for a frame without a finite point.
+        """
+        T = check_pose(T_map_cam)
+        pts = _as_float_points(points_cam, "points_cam").detach().cpu().numpy().astype(np.float32)
+        n_in = pts.shape[0]
+        if n_in == 0:
+            raise EmptyFrameError("integrate_frame: the frame has no points")
+        cols = self._check_colors(colors, n_in)
+        labs = self._check_labels(labels, n_in)
+        finite = np.isfinite(pts).all(axis=1)
+        n_dropped = int(n_in - finite.sum())
+        if n_dropped == n_in:
+            raise EmptyFrameError(f"integrate_frame: all {n_in} points are NaN/inf")
+        if n_dropped:
+            pts, cols = pts[finite], cols[finite]
+            labs = None if labs is None else labs[finite]
+        if self.cfg.integrate_voxel_size > 0:
+            pts, cols, labs = voxel_downsample(pts, self.cfg.integrate_voxel_size, cols, labs)
+        pts_map = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+        dev = self.device
+        p_t = torch.from_numpy(pts_map).to(dev)
+        new_ids = self.points.add_points(
+            p_t,
+            torch.from_numpy(cols).to(dev),
+            None if labs is None else torch.from_numpy(labs.astype(np.int16)).to(dev),
+        )
+        origin = torch.from_numpy(T[:3, 3].astype(np.float32)).to(dev)
+        samples = sample_rays(p_t, origin, self.cfg.sampling, self.generator)
+        self._add_pending(samples.points, samples.sdf, samples.kind)
+        self.frame_count += 1
+        do_train = (
+            train if train is not None else self.frame_count % self.cfg.training.train_every == 0
+        )
+        tr = self.train() if do_train else None
+        return FrameResult(
+            self.frame_count - 1, len(pts_map), n_dropped, len(new_ids), len(samples), tr
+        )
+
+    def integrate_rgbd(
+        self,
+        depth: np.ndarray,
+        intr: Intrinsics,
+        T_map_cam: np.ndarray,
+        rgb: np.ndarray | None = None,
+        labels: np.ndarray | None = None,
+        train: bool | None = None,
+    ) -> FrameResult:
+        """Back-project (``cfg.perception``) and :meth:`integrate_frame`."""
+        pc = rgbd_to_points(depth, intr, rgb, labels, self.cfg.perception)
+        return self.integrate_frame(pc.points, T_map_cam, pc.colors, pc.labels, train=train)
+
+    def _check_colors(self, colors, n: int) -> np.ndarray:
+        if colors is None:
+            return np.full((n, 3), 0.5, np.float32)
+        c = colors.detach().cpu().numpy() if isinstance(colors, torch.Tensor) else colors
+        if not isinstance(c, np.ndarray) or c.shape != (n, 3):
+            raise ValueError(
+                f"colors must be ({n}, 3), got {getattr(c, 'shape', type(c).__name__)}"
+            )
+        if c.dtype == np.uint8:
+            return c.astype(np.float32) / 255.0
+        if not np.issubdtype(c.dtype, np.floating):
+            raise TypeError(f"colors must be float in [0, 1] or uint8, got dtype {c.dtype}")
+        return np.clip(np.nan_to_num(c.astype(np.float32), nan=0.5), 0.0, 1.0)
+
+    def _check_labels(self, labels, n: int) -> np.ndarray | None:
+        if labels is None:
+            return None
+        lab = labels.detach().cpu().numpy() if isinstance(labels, torch.Tensor) else labels
+        if not isinstance(lab, np.ndarray) or lab.shape != (n,):
+            raise ValueError(
+                f"labels must be ({n},), got {getattr(lab, 'shape', type(lab).__name__)}"
+            )
+        if not np.issubdtype(lab.dtype, np.integer):
+            raise TypeError(f"labels must be integers, got dtype {lab.dtype}")
+        return lab.astype(np.int16)
+
+    def _add_pending(self, x: torch.Tensor, s: torch.Tensor, k: torch.Tensor) -> None:
+        self._pending.append((x, s, k))
+        self._n_pending += x.shape[0]
+        cap = self.cfg.training.max_pending
+        if self._n_pending > cap:  # keep a uniform random subset
+            X, S, K = (torch.cat(t) for t in zip(*self._pending, strict=True))
+            sel = torch.randperm(X.shape[0], generator=self.generator, device=self.device)[:cap]
+            self._pending = [(X[sel], S[sel], K[sel])]
+            self._n_pending = cap
+
+    @property
+    def n_pending(self) -> int:
+        """Samples waiting for the next training call."""
+        return self._n_pending
+
+    # ------------------------------------------------------------------ training
+    def train(self, max_iters: int | None = None) -> TrainResult:
+        """Adaptive training loop on the pending samples mixed with replayed ones.
+
+        Stops when the mean loss of the last ``loss_window`` iterations differs from the
+        window before by less than ``loss_threshold`` (after ``min_iters``), or at
+        ``max_iters``. Features of the neural points touched by the batch and the decoder
+        weights are updated by Adam. Afterwards the new samples join the replay pool.
+        """
+        tc = self.cfg.training
+        t0 = time.perf_counter()
+        cap = tc.max_iters if max_iters is None else int(max_iters)
+        if self._n_pending == 0:
+            return TrainResult(0, False, float("nan"), 0, 0, 0.0)
+        Xn, Sn, Kn = (torch.cat(t) for t in zip(*self._pending, strict=True))
+        self._pending, self._n_pending = [], 0
+        n_new = Xn.shape[0]
+        if tc.use_replay and len(self.replay) > 0:
+            m = int(round(n_new * tc.replay_ratio / (1.0 - tc.replay_ratio)))
+            Xo, So, Ko = self.replay.sample(max(m, 1), self.generator)
+        else:
+            Xo, So, Ko = Xn[:0], Sn[:0], Kn[:0]
+        X, S, K = torch.cat([Xn, Xo]), torch.cat([Sn, So]), torch.cat([Kn, Ko])
+        old = torch.cat(
+            [torch.zeros(n_new, dtype=torch.bool), torch.ones(Xo.shape[0], dtype=torch.bool)]
+        )
+        old = old.to(self.device)
+        idx, _ = self.points.knn(X)
+        ok = idx[:, 0] >= 0
+        X, S, K, idx, old = X[ok], S[ok], K[ok], idx[ok], old[ok]
+        if X.shape[0] == 0:
+            return TrainResult(0, False, float("nan"), 0, 0, time.perf_counter() - t0)
+        # Work on the sub-table of neural points this batch touches.
+        nbv = idx >= 0
+        active, local = torch.unique(idx[nbv], return_inverse=True)
+        lidx = torch.zeros_like(idx)
+        lidx[nbv] = local
+        nb_pos = self.points.positions[active][lidx]
+        nb_col = self.points.colors[active][lidx]
+        feat = self.points.features[active].clone().requires_grad_(True)
+        opt = torch.optim.Adam(
+            [
+                {"params": list(self.decoder.parameters()), "lr": tc.lr},
+                {"params": [feat], "lr": tc.feature_lr},
+            ]
+        )
+        new_ids = torch.nonzero(~old).squeeze(1)
+        old_ids = torch.nonzero(old).squeeze(1)
+        use_ewc = tc.use_ewc and self.ewc.active and tc.ewc_weight > 0
+        power = self.cfg.points.idw_power
+        losses: list[float] = []
+        converged = False
+        it = 0
+        B = tc.batch_size
+        for it in range(1, cap + 1):  # noqa: B007
+            if old_ids.numel() and new_ids.numel():
+                nb_old = int(round(B * tc.replay_ratio))
+                bi = torch.cat(
+                    [
+                        new_ids[
+                            torch.randint(
+                                new_ids.numel(),
+                                (B - nb_old,),
+                                generator=self.generator,
+                                device=self.device,
+                            )
+                        ],
+                        old_ids[
+                            torch.randint(
+                                old_ids.numel(),
+                                (nb_old,),
+                                generator=self.generator,
+                                device=self.device,
+                            )
+                        ],
+                    ]
+                )
+            else:
+                bi = torch.randint(X.shape[0], (B,), generator=self.generator, device=self.device)
+            x = X[bi]
+            ne = int(round(B * tc.eikonal_fraction)) if tc.eikonal_weight > 0 else 0
+            if ne:
+                x = x.clone()
+                xe = x[:ne].requires_grad_(True)
+                x = torch.cat([xe, x[ne:]])
+            f, c, ctr = idw_interpolate(x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], power)
+            pred = self._decode(x, f, c, ctr)
+            loss = tc.bce_weight * bce_sdf_loss(pred, S[bi], tc.sigma)
+            if ne:
+                (g,) = torch.autograd.grad(pred[:ne].sum(), xe, create_graph=True)
+                loss = loss + tc.eikonal_weight * eikonal_loss(g)
+            if use_ewc:
+                loss = loss + tc.ewc_weight * self.ewc.penalty(self.decoder)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            w = tc.loss_window
+            if it >= max(tc.min_iters, 2 * w):
+                a = sum(losses[-w:]) / w
+                b = sum(losses[-2 * w : -w]) / w
+                if abs(a - b) < tc.loss_threshold:
+                    converged = True
+                    break
+        with torch.no_grad():
+            self.points.features[active] = feat.detach()
+        Xnv, Snv, Knv = X[~old], S[~old], K[~old]
+        if tc.use_replay:
+            self.replay.add(Xnv, Snv, Knv, self.generator)
+        self._recent.add(Xnv, Snv, Knv, self.generator)
+        w = min(tc.loss_window, len(losses))
+        res = TrainResult(
+            iterations=it,
+            converged=converged,
+            final_loss=sum(losses[-w:]) / w,
+            n_samples=int(X.shape[0]),
+            n_replayed=int(old_ids.numel()),
+            seconds=time.perf_counter() - t0,
+        )
+        self.last_train = res
+        return res
+
+    def consolidate(self) -> None:
+        """Take the diagonal Fisher of the decoder on the samples learned since the last call
+        (call when the local frame is closed) and anchor EWC at the current weights."""
+        if len(self._recent) == 0:
+            return
+        X, S = self._recent.points, self._recent.sdf
+        idx, _ = self.points.knn(X)
+        ok = idx[:, 0] >= 0
+        X, S, idx = X[ok], S[ok], idx[ok]
+        if X.shape[0] == 0:
+            return
+        with torch.no_grad():
+            f, c, ctr = self.points.interpolate(X, idx)
+            pin = self._position_input(X, ctr)
+        sigma = self.cfg.training.sigma
+        fisher = diagonal_fisher(
+            self.decoder, (f, c, pin), S, lambda out, y: bce_sdf_loss(out, y, sigma)
+        )
+        self.ewc.consolidate(self.decoder, fisher)
+        self._recent = ReplayPool(self.cfg.training.fisher_samples, self.device)
+
+    # ------------------------------------------------------------------ decoding
+    def _position_input(self, x: torch.Tensor, centroid: torch.Tensor) -> torch.Tensor:
+        mode = self.decoder.cfg.position_input
+        if mode == "relative":
+            return (x - centroid) / self.cfg.points.search_radius
+        return x  # "absolute" (and ignored by the decoder for "none")
+
+    def _decode(
+        self, x: torch.Tensor, feat: torch.Tensor, col: torch.Tensor, centroid: torch.Tensor
+    ) -> torch.Tensor:
+        """The decoder on interpolated inputs at map-frame points ``x`` -> sdf (N,)."""
+        return self.decoder(feat, col, self._position_input(x, centroid))
+
+    # ------------------------------------------------------------------ queries
+    def query(self, points: np.ndarray | torch.Tensor, with_grad: bool = False) -> SdfQuery:
+        """SDF (and gradient) at (N, 3) map-frame points, batched.
+
+        Points without a neural point within ``search_radius`` are invalid: their SDF and
+        gradient are NaN and ``valid`` is False. Returns numpy for numpy input, torch otherwise.
+        """
+        is_np = isinstance(points, np.ndarray)
+        x_all = _as_float_points(points).to(self.device, torch.float32)
+        n = x_all.shape[0]
+        sdf = torch.full((n,), float("nan"), device=self.device)
+        grad = torch.full((n, 3), float("nan"), device=self.device) if with_grad else None
+        valid = torch.zeros(n, dtype=torch.bool, device=self.device)
+        step = self.cfg.points.query_chunk
+        for s in range(0, n, step):
+            x = x_all[s : s + step]
+            idx, _ = self.points.knn(x)
+            ok = idx[:, 0] >= 0
+            if not ok.any():
+                continue
+            x, idx = x[ok], idx[ok]
+            sl = torch.arange(s, s + ok.shape[0], device=self.device)[ok]
+            valid[sl] = True
+            if with_grad:
+                with torch.enable_grad():
+                    xg = x.detach().clone().requires_grad_(True)
+                    f, c, ctr = self.points.interpolate(xg, idx)
+                    out = self._decode(xg, f, c, ctr)
+                    (g,) = torch.autograd.grad(out.sum(), xg)
+                sdf[sl] = out.detach()
+                grad[sl] = g
+            else:
+                with torch.no_grad():
+                    f, c, ctr = self.points.interpolate(x, idx)
+                    sdf[sl] = self._decode(x, f, c, ctr)
+        if is_np:
+            return SdfQuery(
+                sdf.cpu().numpy(), None if grad is None else grad.cpu().numpy(), valid.cpu().numpy()
+            )
+        return SdfQuery(sdf, grad, valid)
+
+    def sdf(self, points: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        """(N,) SDF at map-frame points (NaN where no neural point is within reach)."""
+        return self.query(points).sdf
+
+    def sdf_and_grad(self, points: np.ndarray | torch.Tensor):
+        """(N,) SDF and (N, 3) gradient d sdf / d p at map-frame points (NaN where invalid)."""
+        q = self.query(points, with_grad=True)
+        return q.sdf, q.grad
+
+    def feature_points(self) -> FeaturePoints:
+        """Positions (map frame), features, colours and semantic labels of the neural points."""
+        return self.points.snapshot()
+
+    def nbytes(self) -> int:
+        """Bytes held by the map's tensors (points, index, decoder, replay pool)."""
+        n = self.points.nbytes()
+        n += sum(p.numel() * p.element_size() for p in self.decoder.parameters())
+        for pool in (self.replay, self._recent):
+            n += sum(t.numel() * t.element_size() for t in (pool.points, pool.sdf, pool.kind))
+        n += sum(t.numel() * t.element_size() for tri in self._pending for t in tri)
+        return int(n)
+
+    def extract_mesh(self, resolution: float = 0.02, bounds: np.ndarray | None = None):
+        """Zero level set as a triangle mesh (marching cubes); see :func:`mesh.extract_mesh`."""
+        from simn_sim.mapping.mesh import extract_mesh
+
+        return extract_mesh(self, resolution=resolution, bounds=bounds)
+
+    # ------------------------------------------------------------------ sibling maps
+    def new_map(self, share_decoder: bool = True) -> ImplicitMap:
+        """An empty map for a new local frame with the same config, sharing this decoder or
+        starting from a copy of it."""
+        dec = self.decoder if share_decoder else self.decoder.copy()
+        return ImplicitMap(self.cfg, dec, self.generator)
+
+    # ------------------------------------------------------------------ persistence
+    def state_dict(self) -> dict:
+        p = self.points
+        return {
+            "format": MAP_FORMAT,
+            "version": MAP_VERSION,
+            "config": self.cfg.to_dict(),
+            "decoder": {k: v.detach().cpu() for k, v in self.decoder.state_dict().items()},
+            "points": {
+                "positions": p.positions.cpu(),
+                "features": p.features.cpu(),
+                "colors": p.colors.cpu(),
+                "labels": p.labels.cpu(),
+            },
+            "ewc": self.ewc.state_dict(),
+            "replay": self.replay.state_dict(),
+            "frame_count": self.frame_count,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the map (config, decoder, points, EWC and replay state) to ``path``."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(self.state_dict(), path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, device: str | None = None) -> ImplicitMap:
+        """Read a map written by :meth:`save`. Raises :class:`MapFileError` when the file is
+        missing, corrupt, or not a simn-sim implicit map."""
+        path = Path(path)
+        if not path.is_file():
+            raise MapFileError(f"{path}: no such map file")
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # noqa: BLE001 - any unpickling failure means a bad file
+            raise MapFileError(
+                f"{path}: not a readable simn-sim map file ({type(e).__name__}: {e})"
+            ) from e
+        if not isinstance(state, dict) or state.get("format") != MAP_FORMAT:
+            raise MapFileError(
+                f"{path}: not a simn-sim implicit map (missing format tag {MAP_FORMAT!r})"
+            )
+        if state.get("version") != MAP_VERSION:
+            raise MapFileError(
+                f"{path}: map format version {state.get('version')} is not supported"
+            )
+        try:
+            cfg = MapperConfig.from_dict(state["config"])
+            if device is not None:
+                cfg = cfg.replace(device=device)
+            m = cls(cfg)
+            m.decoder.load_state_dict(state["decoder"])
+            pts = state["points"]
+            m.points.set_state(pts["positions"], pts["features"], pts["colors"], pts["labels"])
+            m.ewc.load_state_dict(state["ewc"])
+            if m.ewc.fisher is not None:
+                m.ewc.fisher = {k: v.to(m.device) for k, v in m.ewc.fisher.items()}
+                m.ewc.anchor = {k: v.to(m.device) for k, v in m.ewc.anchor.items()}
+            m.replay.load_state_dict(state["replay"])
+            m.frame_count = int(state["frame_count"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as e:
+            raise MapFileError(f"{path}: corrupt simn-sim map ({type(e).__name__}: {e})") from e
+        return m

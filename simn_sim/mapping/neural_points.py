@@ -1,0 +1,286 @@
+"""Neural points ``m_j = (p_j, f_j, s_j)`` in a voxel-hashed store with a k-NN spatial index.
+
+Storage: one neural point per occupied ``voxel_size`` voxel. Voxel coordinates are packed
+into 63-bit integer keys and kept sorted, so membership tests and inserts are vectorised
+``searchsorted`` calls (a sorted hash table, no collisions).
+
+Neighbour search: the points are also bucketed into cells of edge ``search_radius``; the k
+nearest points of a query within the radius are among the 27 cells around the query's cell,
+which are gathered into a padded candidate matrix and reduced with ``topk``. No linear scan.
+Queries without any neighbour within the radius get ``idx = -1`` everywhere; callers use
+:meth:`NeuralPointMap.knn`'s validity mask rather than garbage values. Training and queries
+use this same neighbourhood definition (DESIGN.md section 6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from simn_sim.mapping.config import NeuralPointsConfig
+
+_BITS = 21
+_OFF = 1 << (_BITS - 1)
+_MASK = (1 << _BITS) - 1
+
+
+def pack_keys(ijk: torch.Tensor) -> torch.Tensor:
+    """(..., 3) int64 voxel coordinates (|c| < 2**20) -> (...) int64 keys."""
+    c = ijk + _OFF
+    return (c[..., 0] << (2 * _BITS)) | (c[..., 1] << _BITS) | c[..., 2]
+
+
+def unpack_keys(keys: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`pack_keys`."""
+    return (
+        torch.stack([(keys >> (2 * _BITS)) & _MASK, (keys >> _BITS) & _MASK, keys & _MASK], -1)
+        - _OFF
+    )
+
+
+def _offsets27(device: torch.device) -> torch.Tensor:
+    r = torch.arange(-1, 2, device=device)
+    return torch.stack(torch.meshgrid(r, r, r, indexing="ij"), -1).reshape(-1, 3)
+
+
+@dataclasses.dataclass
+class FeaturePoints:
+    """A snapshot of the map's points (numpy): positions (N, 3) float32 in map coordinates,
+    features (N, D) float32, colors (N, 3) float32 in [0, 1], labels (N,) int16."""
+
+    positions: object
+    features: object
+    colors: object
+    labels: object
+
+
+class NeuralPointMap:
+    """Positions, learned features, colours and semantic labels of the neural points, plus the
+    spatial index. Points are only ever added (never moved), so indices stay stable."""
+
+    def __init__(
+        self,
+        cfg: NeuralPointsConfig | None = None,
+        device: str | torch.device = "cpu",
+        generator: torch.Generator | None = None,
+    ) -> None:
+        self.cfg = cfg or NeuralPointsConfig()
+        self.device = torch.device(device)
+        self.generator = generator
+        d = self.device
+        self.positions = torch.empty((0, 3), dtype=torch.float32, device=d)
+        self.features = torch.empty((0, self.cfg.feature_dim), dtype=torch.float32, device=d)
+        self.colors = torch.empty((0, 3), dtype=torch.float32, device=d)
+        self.labels = torch.empty((0,), dtype=torch.int16, device=d)
+        self._off27 = _offsets27(d)
+        self._rebuild_index()
+
+    # ------------------------------------------------------------------ storage
+    def __len__(self) -> int:
+        return int(self.positions.shape[0])
+
+    def voxel_keys(self, points: torch.Tensor) -> torch.Tensor:
+        return pack_keys(torch.floor(points / self.cfg.voxel_size).long())
+
+    def _rebuild_index(self) -> None:
+        keys = self.voxel_keys(self.positions)
+        self._vkeys, self._vorder = torch.sort(keys)
+        cell = torch.floor(self.positions / self.cfg.search_radius).long()
+        bkeys = pack_keys(cell)
+        sorted_b, perm = torch.sort(bkeys, stable=True)
+        self._bperm = perm
+        self._bkeys, counts = torch.unique_consecutive(sorted_b, return_counts=True)
+        self._bcount = counts
+        self._bstart = torch.cumsum(counts, 0) - counts
+
+    def lookup_voxels(self, points: torch.Tensor) -> torch.Tensor:
+        """(N, 3) points -> (N,) index of the neural point in the same voxel, or -1."""
+        keys = self.voxel_keys(points)
+        if len(self) == 0:
+            return torch.full(keys.shape, -1, dtype=torch.long, device=self.device)
+        pos = torch.searchsorted(self._vkeys, keys).clamp(max=len(self) - 1)
+        hit = self._vkeys[pos] == keys
+        return torch.where(hit, self._vorder[pos], torch.full_like(pos, -1))
+
+    def add_points(
+        self,
+        points: torch.Tensor,
+        colors: torch.Tensor | None = None,
+        labels: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Insert (N, 3) map-frame points; one neural point per new voxel (the first point
+        falling in it). A known point whose label is 0 (unknown) takes a given non-zero label.
+        Returns the indices of the points created."""
+        points = points.to(self.device, torch.float32)
+        n = points.shape[0]
+        if colors is None:
+            colors = torch.full((n, 3), 0.5, device=self.device)
+        colors = colors.to(self.device, torch.float32)
+        if labels is not None:
+            labels = labels.to(self.device, torch.int16)
+            known = self.lookup_voxels(points)
+            upd = (known >= 0) & (labels != 0)
+            if upd.any():
+                ki = known[upd]
+                cur = self.labels[ki]
+                self.labels[ki] = torch.where(cur == 0, labels[upd], cur)
+        keys = self.voxel_keys(points)
+        new = self.lookup_voxels(points) < 0
+        keys_new = keys[new]
+        if keys_new.numel() == 0:
+            return torch.empty((0,), dtype=torch.long, device=self.device)
+        # first occurrence of each new voxel
+        uk, inv = torch.unique(keys_new, return_inverse=True)
+        first = torch.full((uk.numel(),), keys_new.numel(), dtype=torch.long, device=self.device)
+        first.scatter_reduce_(0, inv, torch.arange(keys_new.numel(), device=self.device), "amin")
+        first = torch.sort(first).values
+        src = torch.nonzero(new).squeeze(1)[first]
+        m = src.numel()
+        start = len(self)
+        feats = (
+            torch.randn((m, self.cfg.feature_dim), generator=self.generator, device=self.device)
+            * self.cfg.feature_init_std
+        )
+        self.positions = torch.cat([self.positions, points[src]])
+        self.features = torch.cat([self.features, feats])
+        self.colors = torch.cat([self.colors, colors[src]])
+        lab = (
+            labels[src]
+            if labels is not None
+            else torch.zeros(m, dtype=torch.int16, device=self.device)
+        )
+        self.labels = torch.cat([self.labels, lab])
+        self._rebuild_index()
+        return torch.arange(start, start + m, device=self.device)
+
+    def set_state(
+        self,
+        positions: torch.Tensor,
+        features: torch.Tensor,
+        colors: torch.Tensor,
+        labels: torch.Tensor,
+    ) -> None:
+        """Replace all points (used by map loading)."""
+        n = positions.shape[0]
+        if not (
+            positions.shape == (n, 3)
+            and features.shape == (n, self.cfg.feature_dim)
+            and colors.shape == (n, 3)
+            and labels.shape == (n,)
+        ):
+            raise ValueError("inconsistent neural-point arrays")
+        self.positions = positions.to(self.device, torch.float32).contiguous()
+        self.features = features.to(self.device, torch.float32).contiguous()
+        self.colors = colors.to(self.device, torch.float32).contiguous()
+        self.labels = labels.to(self.device, torch.int16).contiguous()
+        self._rebuild_index()
+
+    def snapshot(self) -> FeaturePoints:
+        return FeaturePoints(
+            self.positions.cpu().numpy().copy(),
+            self.features.cpu().numpy().copy(),
+            self.colors.cpu().numpy().copy(),
+            self.labels.cpu().numpy().copy(),
+        )
+
+    def nbytes(self) -> int:
+        ts = [self.positions, self.features, self.colors, self.labels, self._vkeys, self._vorder]
+        ts += [self._bperm, self._bkeys, self._bcount, self._bstart]
+        return int(sum(t.numel() * t.element_size() for t in ts))
+
+    # ------------------------------------------------------------------ search
+    @torch.no_grad()
+    def knn(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """k nearest neural points of each query within ``search_radius``.
+
+        x: (Q, 3) float32 map-frame queries. Returns idx (Q, k) int64 (-1 where fewer than k
+        neighbours exist) and squared distances (Q, k) (inf where idx is -1), nearest first.
+        """
+        k = self.cfg.k_neighbors
+        q = x.shape[0]
+        idx_out = torch.full((q, k), -1, dtype=torch.long, device=self.device)
+        d2_out = torch.full((q, k), float("inf"), device=self.device)
+        if len(self) == 0 or q == 0:
+            return idx_out, d2_out
+        step = self.cfg.query_chunk
+        for s in range(0, q, step):
+            i, d = self._knn_chunk(x[s : s + step].to(self.device, torch.float32))
+            idx_out[s : s + step], d2_out[s : s + step] = i, d
+        return idx_out, d2_out
+
+    def _knn_chunk(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        k, r = self.cfg.k_neighbors, self.cfg.search_radius
+        q = x.shape[0]
+        cell = torch.floor(x / r).long()
+        keys = pack_keys(cell[:, None, :] + self._off27[None])  # (Q, 27)
+        nb = self._bkeys.numel()
+        pos = torch.searchsorted(self._bkeys, keys).clamp(max=nb - 1)
+        found = self._bkeys[pos] == keys
+        cnt = torch.where(found, self._bcount[pos], torch.zeros_like(pos))
+        start = self._bstart[pos]
+        cum = torch.cumsum(cnt, 1)
+        total = cum[:, -1]
+        c = int(total.max())
+        if c == 0:
+            return (
+                torch.full((q, k), -1, dtype=torch.long, device=self.device),
+                torch.full((q, k), float("inf"), device=self.device),
+            )
+        j = torch.arange(c, device=self.device).expand(q, c).contiguous()
+        b = torch.searchsorted(cum, j, right=True).clamp(max=26)  # bucket of each slot
+        before = (cum - cnt).gather(1, b)
+        slot = start.gather(1, b) + j - before
+        ok = j < total[:, None]
+        slot = torch.where(ok, slot, torch.zeros_like(slot))
+        cand = self._bperm[slot]  # (Q, C) point ids
+        d2 = ((self.positions[cand] - x[:, None, :]) ** 2).sum(-1)
+        d2 = torch.where(ok & (d2 <= r * r), d2, torch.full_like(d2, float("inf")))
+        kk = min(k, c)
+        d2k, arg = torch.topk(d2, kk, dim=1, largest=False)
+        idk = cand.gather(1, arg)
+        idk = torch.where(torch.isfinite(d2k), idk, torch.full_like(idk, -1))
+        if kk < k:
+            pad = k - kk
+            idk = torch.cat(
+                [idk, torch.full((q, pad), -1, dtype=torch.long, device=self.device)], 1
+            )
+            d2k = torch.cat([d2k, torch.full((q, pad), float("inf"), device=self.device)], 1)
+        return idk, d2k
+
+    # ------------------------------------------------------------------ interpolation
+    def interpolate(
+        self, x: torch.Tensor, idx: torch.Tensor, features: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """IDW-interpolated features (Q, D), colours (Q, 3) and neighbour centroid (Q, 3) at
+        ``x`` from neighbours ``idx`` (global indices, -1 = none). ``features`` overrides the
+        stored feature table."""
+        ic = idx.clamp(min=0)
+        f = features if features is not None else self.features
+        return idw_interpolate(
+            x, self.positions[ic], idx >= 0, f[ic], self.colors[ic], self.cfg.idw_power
+        )
+
+
+def idw_interpolate(
+    x: torch.Tensor,
+    nb_pos: torch.Tensor,
+    nb_valid: torch.Tensor,
+    nb_feat: torch.Tensor,
+    nb_col: torch.Tensor,
+    power: float,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Inverse-distance interpolation, differentiable in ``x`` and the features.
+
+    x (Q, 3); neighbour positions (Q, k, 3), validity (Q, k), features (Q, k, D), colours
+    (Q, k, 3). ``w_k = 1 / ||p_k - x||^power`` normalised over the valid neighbours (distances
+    clamped at 1 mm); rows without any valid neighbour give zeros. Returns the interpolated
+    features (Q, D), colours (Q, 3) and the weighted neighbour centroid (Q, 3).
+    """
+    d = torch.sqrt(((x[:, None, :] - nb_pos) ** 2).sum(-1) + 1e-12).clamp(min=1e-3)
+    w = d.pow(-power) * nb_valid
+    w = w / w.sum(1, keepdim=True).clamp(min=1e-12)
+    feat = (w[..., None] * nb_feat).sum(1)
+    col = (w[..., None] * nb_col).sum(1)
+    centroid = (w[..., None] * nb_pos).sum(1)
+    return feat, col, centroid
