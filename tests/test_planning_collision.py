@@ -20,20 +20,26 @@ def wall_points(x: float, y0: float, y1: float, z: float = 0.5, step: float = 0.
 def test_wall_inflated_by_robot_radius() -> None:
     c = CollisionChecker(CollisionConfig(resolution=0.05, robot_radius=0.25))
     c.update(wall_points(2.0, 0.0, 4.0))
-    tol = 0.05 / np.sqrt(2) + 1e-9  # quantisation of obstacle points to cell centres
-    xs = np.array([1.5, 1.7, 1.8, 1.9, 2.0, 2.1, 2.2, 2.3, 2.5])
+    # is_free is per cell: query and obstacle are each quantised to a cell centre
+    tol = 0.05 * np.sqrt(2) + 1e-9
+    xs = np.linspace(1.4, 2.6, 241)
     q = np.column_stack([xs, np.full_like(xs, 2.0)])
     free = c.is_free(q)
     expect_free = np.abs(xs - 2.0) > 0.25 + tol
     expect_blocked = np.abs(xs - 2.0) < 0.25 - tol
+    assert expect_free.sum() > 50 and expect_blocked.sum() > 50
     assert np.all(free[expect_free]) and not np.any(free[expect_blocked])
-    # clearance equals the distance to the wall up to quantisation
+    assert [c.is_free_point(x, 2.0) for x in xs] == free.tolist()
+    # clearance (point-based) equals the distance to the wall up to obstacle quantisation
     qq = np.column_stack([np.linspace(0.5, 3.5, 13), np.full(13, 2.0)])
-    np.testing.assert_allclose(c.clearance(qq), np.minimum(np.abs(qq[:, 0] - 2.0), 2.0), atol=tol)
+    np.testing.assert_allclose(
+        c.clearance(qq), np.minimum(np.abs(qq[:, 0] - 2.0), 2.0), atol=0.05 / np.sqrt(2) + 1e-6
+    )
     # beyond the wall's end (y > 4.25 + tol) the robot passes
     assert c.is_free(np.array([[2.0, 4.35]]))[0]
     # unknown space (outside the grid) is free
-    assert c.is_free(np.array([[50.0, -40.0]]))[0]
+    assert c.is_free(np.array([[50.0, -40.0]]))[0] and c.is_free_point(50.0, -40.0)
+    assert not c.is_free_point(float("nan"), 0.0)
     assert c.clearance(np.array([[50.0, -40.0]]))[0] == c.cfg.max_clearance
 
 
@@ -114,6 +120,11 @@ def test_segments_free_matches_dense_point_checks() -> None:
     # sampling at res/2 can only miss a sliver thinner than that; with a 0.5 m inflated wall none
     np.testing.assert_array_equal(got, dense)
     assert got.any() and not got.all()
+    # direction-independent, and every sub-segment of a free segment is free
+    np.testing.assert_array_equal(c.segments_free(B, A), got)
+    t0, t1 = np.sort(rng.uniform(0, 1, size=(2, 300)), axis=0)
+    sa, sb = A + (B - A) * t0[:, None], A + (B - A) * t1[:, None]
+    assert np.all(c.segments_free(sa, sb)[got])
     assert not c.segment_free([1.0, 2.0], [3.0, 2.0])  # crosses the wall
     assert c.segment_free([1.0, 4.5], [3.0, 4.5])  # passes above its end
     assert not c.segments_free(np.array([[np.nan, 0.0]]), np.array([[0.0, 0.0]]))[0]

@@ -128,7 +128,13 @@ def test_goal_vector_samples_lie_on_rays() -> None:
 
 
 def test_sampler_tree_anchors_and_uniform_window() -> None:
-    cfg = GoalVectorConfig(tree_anchor_fraction=0.5, uniform_fraction=0.2, uniform_margin=1.0)
+    cfg = GoalVectorConfig(
+        tree_anchor_fraction=0.5,
+        frontier_anchor_fraction=0.0,
+        adaptive_rays=False,
+        uniform_fraction=0.2,
+        uniform_margin=1.0,
+    )
     start, goal = np.array([0.0, 0.0]), np.array([5.0, 0.0])
     smp = GoalVectorSampler(cfg, record=True)
     smp.reset(start, goal, np.random.default_rng(1))
@@ -267,3 +273,34 @@ def test_node_index_matches_brute_force() -> None:
                 got = np.sort(idx.within(q, 1.3))
                 np.testing.assert_array_equal(got, np.nonzero(d <= 1.3)[0])
     assert 3 < idx.rebuilds < 40  # log-structured: geometric rebuilds
+
+
+def test_adaptive_rays_widen_on_stall_and_reset_on_progress() -> None:
+    cfg = GoalVectorConfig(
+        n_rays=4, adaptive_rays=True, initial_rays=1, stall_samples=10, progress_min=0.05
+    )
+    start, goal = np.array([0.0, 0.0]), np.array([6.0, 0.0])
+    smp = GoalVectorSampler(cfg, record=True)
+    smp.reset(start, goal, np.random.default_rng(0))
+    tree = Tree(start)
+    levels = []
+    for _ in range(60):  # the tree never grows: no progress, the fan opens one pair per 10
+        smp.sample(tree)
+        levels.append(smp.level)
+    assert levels[0] == 1 and levels[-1] == 4 and sorted(levels) == levels
+    rays = np.array([rec[1] for rec in smp.log])
+    ray_ok = rays != GoalVectorSampler.UNIFORM_RAY
+    assert np.all(np.abs(rays[:9][ray_ok[:9]]) <= 1)
+    assert np.any(np.abs(rays[30:][ray_ok[30:]]) >= 3)
+    tree.add(np.array([1.0, 0.0]), 0, 1.0)  # progress towards the goal
+    smp.sample(tree)
+    assert smp.level == 1 and smp.best_index == 1 and smp.best_distance == pytest.approx(5.0)
+    # the frontier anchor is the node nearest the goal
+    f = GoalVectorSampler(
+        cfg.replace(frontier_anchor_fraction=1.0, tree_anchor_fraction=0.0), record=True
+    )
+    f.reset(start, goal, np.random.default_rng(1))
+    for _ in range(20):
+        f.sample(tree)
+    ray_recs = [rec for rec in f.log if rec[1] != GoalVectorSampler.UNIFORM_RAY]
+    assert len(ray_recs) > 10 and all(np.allclose(rec[0], [1.0, 0.0]) for rec in ray_recs)

@@ -44,6 +44,20 @@ def test_next_node_on_weighted_shortest_path() -> None:
     assert g.edges["B", "C"]["weight"] == 100.0 and set(g.nodes) == set("ABCDE")
 
 
+def test_known_goal_node_overrides_nearest_anchor() -> None:
+    g = office_graph()
+    goal = [10.5, 2.0]
+    # nearest anchor to the goal is C, but the caller knows the goal lies in E's frame
+    assert route_subgoal(g, "A", goal, frame_radius=1.5).route == ["A", "B", "C"]
+    r = route_subgoal(g, "A", goal, frame_radius=1.5, goal_node="E")
+    assert r.next_node == "E" and r.route == ["A", "E"]
+    r = route_subgoal(g, "E", goal, frame_radius=1.5, goal_node="E")
+    assert r.kind == "goal_in_frame" and r.next_node is None
+    np.testing.assert_allclose(r.xy, goal)
+    with pytest.raises(ValueError, match="goal node"):
+        route_subgoal(g, "A", goal, goal_node="Q")
+
+
 def test_goal_in_unexplored_space_is_returned_itself() -> None:
     g = office_graph()
     r = route_subgoal(g, "A", [15.0, 30.0], frame_radius=3.0)

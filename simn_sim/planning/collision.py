@@ -9,10 +9,11 @@ Representation: an occupancy grid (``resolution`` metres per cell, axis-aligned 
 planning frame, x-y metres) plus, for every cell, the index of the nearest occupied cell, from a
 Euclidean distance transform (``scipy.ndimage.distance_transform_edt``). The clearance of a query
 point ``q`` is the distance from ``q`` to the centre of the occupied cell nearest to ``q``'s
-cell, capped at ``max_clearance``; a point is free when its clearance exceeds
-``robot_radius + margin``. Obstacles are thus quantised to cell centres (an error of at most
-``resolution / sqrt(2)``, which ``margin`` can absorb). Point checks are O(1) gathers and segment
-checks sample every segment at ``<= resolution / 2`` in one vectorised call.
+cell, capped at ``max_clearance``. Collision checks are per cell, as in a costmap: a point is free
+when its cell is free, i.e. the cell centre is farther than ``robot_radius + margin`` from every
+obstacle cell centre (the ``blocked`` grid). Obstacles and queries are thus quantised to cell
+centres (each within ``resolution / sqrt(2)``, which ``margin`` can absorb). Point checks are O(1)
+lookups; segment checks visit exactly the cells a segment passes through (vectorised traversal).
 
 Updates are incremental: new obstacle points can only lower distances, so an update recomputes the
 transform only in a window around the new cells (padded by ``max_clearance``) and merges it with
@@ -97,6 +98,9 @@ class CollisionChecker:
         nearest: (2, nx, ny) int32, grid index of the nearest occupied cell (or -1 if none
             within ``max_clearance``).
         dist: (nx, ny) float32, centre-to-centre distance to ``nearest`` in metres (capped).
+        blocked: (nx, ny) bool, ``dist <= cfg.inflation``: the robot centred in the cell collides.
+    The outermost cells are never blocked (the grid is padded by more than ``max_clearance``),
+    which lets queries outside the grid be clipped to its border: unknown space is free.
     """
 
     def __init__(self, cfg: CollisionConfig | None = None) -> None:
@@ -106,6 +110,7 @@ class CollisionChecker:
         self.occupied = np.zeros((0, 0), dtype=bool)
         self.nearest = np.full((2, 0, 0), -1, dtype=np.int32)
         self.dist = np.zeros((0, 0), dtype=np.float32)
+        self.blocked = np.zeros((0, 0), dtype=bool)
         self.n_points = 0
         """Number of obstacle points absorbed so far."""
 
@@ -202,6 +207,7 @@ class CollisionChecker:
             self.occupied = np.zeros(tuple(n), dtype=bool)
             self.nearest = np.full((2, *n), -1, dtype=np.int32)
             self.dist = np.full(tuple(n), self.cfg.max_clearance, dtype=np.float32)
+            self.blocked = np.zeros(tuple(n), dtype=bool)
             return
         nx, ny = self.shape
         cur_hi = self.origin + np.array([nx, ny]) * r
@@ -219,11 +225,13 @@ class CollisionChecker:
         sx, sy = shift
         occ[sx : sx + nx, sy : sy + ny] = self.occupied
         dist[sx : sx + nx, sy : sy + ny] = self.dist
+        blocked = np.zeros(tuple(new_n), dtype=bool)
+        blocked[sx : sx + nx, sy : sy + ny] = self.blocked
         valid = self.nearest[0] >= 0
         near[0, sx : sx + nx, sy : sy + ny] = np.where(valid, self.nearest[0] + sx, -1)
         near[1, sx : sx + nx, sy : sy + ny] = np.where(valid, self.nearest[1] + sy, -1)
         self.cell_offset = self.cell_offset - shift
-        self.occupied, self.nearest, self.dist = occ, near, dist
+        self.occupied, self.nearest, self.dist, self.blocked = occ, near, dist, blocked
 
     def _update_window(self, ii: np.ndarray, jj: np.ndarray) -> None:
         """Merge the distance to the new occupied cells (ii, jj) into ``dist``/``nearest``."""
@@ -243,6 +251,7 @@ class CollisionChecker:
         for k, off in ((0, x0), (1, y0)):
             nk = self.nearest[k, x0:x1, y0:y1]
             nk[better] = idx[k][better] + off
+        self.blocked[x0:x1, y0:y1] = sub <= self.cfg.inflation
 
     def occupied_centres(self) -> np.ndarray:
         """(K, 2) planning-frame x-y of the occupied cell centres."""
@@ -276,20 +285,46 @@ class CollisionChecker:
         out[inside] = d
         return out
 
-    def is_free(self, xy: np.ndarray) -> np.ndarray:
-        """(N, 2) x-y -> (N,) bool: the robot disk centred there touches no obstacle.
+    def _cells(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) finite x-y -> cell indices clipped to the grid (border cells are free)."""
+        nx, ny = self.shape
+        ij = np.floor(q / self.cfg.resolution).astype(np.int64) - self.cell_offset
+        return np.clip(ij[:, 0], 0, nx - 1), np.clip(ij[:, 1], 0, ny - 1)
 
-        Non-finite points are not free."""
+    def is_free(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) x-y -> (N,) bool: the robot disk centred in that cell touches no obstacle.
+
+        Non-finite points are not free; points outside the grid (unknown space) are free."""
         q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         finite = np.all(np.isfinite(q), axis=1)
-        q = np.where(finite[:, None], q, 0.0)
-        return finite & (self.clearance(q) > self.cfg.inflation)
+        if self.occupied.size == 0:
+            return finite
+        if not finite.all():
+            q = np.where(finite[:, None], q, 0.0)
+        i, j = self._cells(q)
+        return finite & ~self.blocked[i, j]
+
+    def is_free_point(self, x: float, y: float) -> bool:
+        """Scalar :meth:`is_free` for one point (no array overhead; the planners' hot path)."""
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return False
+        nx, ny = self.blocked.shape
+        if nx == 0:
+            return True
+        r = self.cfg.resolution
+        i = math.floor(x / r) - int(self.cell_offset[0])
+        j = math.floor(y / r) - int(self.cell_offset[1])
+        if i < 0 or j < 0 or i >= nx or j >= ny:
+            return True
+        return not self.blocked[i, j]
 
     def segments_free(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-        """(N, 2), (N, 2) -> (N,) bool: every point of segment A[i]-B[i] is free.
+        """(N, 2), (N, 2) -> (N,) bool: every cell segment A[i]-B[i] passes through is free.
 
-        Each segment is sampled at spacing <= resolution / 2 (end points included), all
-        segments in one vectorised gather."""
+        Exact grid traversal (vectorised over all segments): the parameters where a segment
+        crosses grid lines split it into pieces that each lie in one cell; the cell of every
+        piece's midpoint is looked up. So a sub-segment of a free segment is free, and the
+        answer does not depend on the direction of the segment."""
         a = np.asarray(A, dtype=np.float64).reshape(-1, 2)
         b = np.asarray(B, dtype=np.float64).reshape(-1, 2)
         if a.shape != b.shape:
@@ -297,24 +332,39 @@ class CollisionChecker:
         n = len(a)
         if n == 0:
             return np.zeros(0, dtype=bool)
-        finite = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
-        a = np.where(finite[:, None], a, 0.0)
-        b = np.where(finite[:, None], b, 0.0)
+        finite = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
         if self.occupied.size == 0:
             return finite
-        step = 0.5 * self.cfg.resolution
-        L = np.hypot(*(b - a).T)
-        k = np.ceil(L / step).astype(np.int64) + 1  # samples per segment (>= 1)
-        total = int(k.sum())
-        seg = np.repeat(np.arange(n), k)
-        start = np.cumsum(k) - k
-        local = np.arange(total) - np.repeat(start, k)
-        denom = np.maximum(k - 1, 1)
-        t = local / np.repeat(denom, k)
-        pts = a[seg] + (b[seg] - a[seg]) * t[:, None]
-        ok = self.clearance(pts) > self.cfg.inflation
-        bad = np.bincount(seg[~ok], minlength=n)
-        return finite & (bad == 0)
+        if not finite.all():
+            a = np.where(finite[:, None], a, 0.0)
+            b = np.where(finite[:, None], b, 0.0)
+        r = self.cfg.resolution
+        ua, ub = a / r, b / r
+        du = ub - ua
+        ts = [np.zeros(n), np.ones(n)]
+        segs = [np.arange(n), np.arange(n)]
+        for ax in (0, 1):
+            lo = np.floor(np.minimum(ua[:, ax], ub[:, ax])) + 1.0
+            hi = np.ceil(np.maximum(ua[:, ax], ub[:, ax])) - 1.0
+            cnt = np.maximum(hi - lo + 1.0, 0.0).astype(np.int64)
+            tot = int(cnt.sum())
+            if tot == 0:
+                continue
+            sg = np.repeat(np.arange(n), cnt)
+            k = lo[sg] + (np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+            ts.append((k - ua[sg, ax]) / du[sg, ax])
+            segs.append(sg)
+        t = np.concatenate(ts)
+        sg = np.concatenate(segs)
+        order = np.lexsort((t, sg))
+        t, sg = t[order], sg[order]
+        same = sg[:-1] == sg[1:]
+        mid = 0.5 * (t[:-1] + t[1:])[same]
+        ms = sg[:-1][same]
+        pts = a[ms] + (b[ms] - a[ms]) * mid[:, None]
+        i, j = self._cells(pts)
+        bad = np.bincount(ms[self.blocked[i, j]], minlength=n) > 0
+        return finite & ~bad
 
     def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """One segment a (2,) -> b (2,)."""

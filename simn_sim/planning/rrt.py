@@ -186,7 +186,7 @@ class RRTStar:
         self.goal_index = None
         self.raw_path = self.path = None
         st = self.stats = PlanStats()
-        coin = rng.random(cfg.max_iterations)
+        coin = np.zeros(0)  # goal-bias coins, drawn in batches as iterations go
         step = cfg.step_size
 
         if self.checker.segment_free(start, goal) and np.hypot(*(goal - start)) <= step:
@@ -202,7 +202,9 @@ class RRTStar:
             if time.perf_counter() > deadline:
                 break
             it += 1
-            if coin[it - 1] < cfg.goal_bias and self.goal_index is None:
+            if (it - 1) % 256 == 0:
+                coin = rng.random(256)
+            if coin[(it - 1) % 256] < cfg.goal_bias and self.goal_index is None:
                 x_rand = goal
             else:
                 x_rand = self.sampler.sample(tree)
@@ -213,7 +215,7 @@ class RRTStar:
                 x_new = tree.xy[i_near] + (x_rand - tree.xy[i_near]) * (step / d_near)
             else:
                 x_new = np.array(x_rand, dtype=np.float64)
-            if not self.checker.is_free(x_new[None])[0]:
+            if not self.checker.is_free_point(x_new[0], x_new[1]):
                 st.n_collision_rejects += 1
                 continue
             i_new = self._insert(x_new, extra=i_near)

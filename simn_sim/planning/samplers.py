@@ -50,13 +50,25 @@ class GoalVectorConfig(Config):
     """Samples along a ray reach up to range_scale * distance(start, goal) ..."""
     min_range: float = 2.0
     """... but at least this far."""
-    uniform_fraction: float = 0.05
+    radial_power: float = 0.5
+    """t = t_max * U(0, 1) ** radial_power: 1 = uniform along the ray, 0.5 = uniform over the
+    area of the ray's wedge (fewer samples crowd the start)."""
+    uniform_fraction: float = 0.1
     """Fraction of samples drawn uniformly over the local window: the bounding box of start and
     goal padded by ``uniform_margin`` (and clipped to the planner's bounds, if any)."""
     uniform_margin: float = 3.0
-    tree_anchor_fraction: float = 0.5
-    """Fraction of ray samples cast from a random tree node instead of the start (0 = the
-    paper's sampler: rays from the robot only)."""
+    tree_anchor_fraction: float = 0.3
+    """Fraction of ray samples cast from a random tree node instead of the start (0 and
+    ``frontier_anchor_fraction = 0`` = the paper's sampler: rays from the robot only)."""
+    frontier_anchor_fraction: float = 0.5
+    """Fraction of ray samples cast from the tree node nearest the goal (the frontier)."""
+    adaptive_rays: bool = True
+    """Start with the rays |k| <= initial_rays and open one more pair of alternative rays per
+    ``stall_samples`` samples in which the tree got no closer to the goal (by
+    ``progress_min``); back to ``initial_rays`` on progress. False: all rays always."""
+    initial_rays: int = 1
+    stall_samples: int = 10
+    progress_min: float = 0.05
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -84,12 +96,27 @@ class GoalVectorConfig(Config):
         require(math.isfinite(self.min_range) and self.min_range > 0, n, "min_range", "> 0")
         require(0 <= self.uniform_fraction < 1, n, "uniform_fraction", "in [0, 1)")
         require(
+            math.isfinite(self.radial_power) and self.radial_power > 0, n, "radial_power", "> 0"
+        )
+        require(
             math.isfinite(self.uniform_margin) and self.uniform_margin >= 0,
             n,
             "uniform_margin",
             ">= 0",
         )
         require(0 <= self.tree_anchor_fraction <= 1, n, "tree_anchor_fraction", "in [0, 1]")
+        require(0 <= self.frontier_anchor_fraction <= 1, n, "frontier_anchor_fraction", "in [0, 1]")
+        require(
+            self.tree_anchor_fraction + self.frontier_anchor_fraction <= 1,
+            n,
+            "frontier_anchor_fraction",
+            "tree + frontier anchor fractions must be <= 1",
+        )
+        require(0 <= self.initial_rays <= self.n_rays, n, "initial_rays", "in [0, n_rays]")
+        require(self.stall_samples >= 1, n, "stall_samples", ">= 1")
+        require(
+            math.isfinite(self.progress_min) and self.progress_min >= 0, n, "progress_min", ">= 0"
+        )
 
     def ray_offsets(self) -> np.ndarray:
         """(2 n_rays + 1,) ray indices k = 0, -1, 1, -2, 2, ... (angle = k * alpha)."""
@@ -131,7 +158,7 @@ def sample_goal_vector(
     w = cfg.ray_decay ** np.abs(ks).astype(np.float64)
     ray = rng.choice(ks, size=n, p=w / w.sum())
     t_max = max(cfg.min_range, cfg.range_scale * dist)
-    t = rng.uniform(0.0, t_max, size=n)
+    t = t_max * rng.random(n) ** cfg.radial_power
     lat = rng.uniform(-cfg.lateral_spread, cfg.lateral_spread, size=n)
     jit = rng.uniform(-1.0, 1.0, size=n) * math.radians(cfg.angular_spread_deg)
     th = theta0 + ray * math.radians(cfg.alpha_deg) + jit
@@ -228,7 +255,17 @@ class GoalVectorSampler:
         self._k = self._n = 0
         ks = self.cfg.ray_offsets()
         w = self.cfg.ray_decay ** np.abs(ks).astype(np.float64)
-        self._ks, self._kp = ks, w / w.sum()
+        self._ks = ks
+        # cumulative ray weights for each number of open ray pairs L (rays |k| <= L)
+        self._cdf = [np.cumsum(w[: 2 * L + 1]) / w[: 2 * L + 1].sum() for L in range(len(ks))]
+        self.level = self.cfg.n_rays
+        """Open ray pairs: rays |k| <= level are sampled."""
+        self.best_index = 0
+        """Tree node nearest the goal so far (the frontier)."""
+        self.best_distance = math.inf
+        self._ref = math.inf
+        self._seen = 0
+        self._stall = 0
         self._alpha = math.radians(self.cfg.alpha_deg)
         self._spread = math.radians(self.cfg.angular_spread_deg)
 
@@ -238,12 +275,16 @@ class GoalVectorSampler:
         self.goal = np.asarray(goal, dtype=np.float64).copy()
         self._k = self._n = 0
         self.log = []
+        self.level = self.cfg.initial_rays if self.cfg.adaptive_rays else self.cfg.n_rays
+        self.best_index, self.best_distance = 0, math.inf
+        self._ref = math.inf
+        self._seen = self._stall = 0
 
     def _refill(self) -> None:
         assert self._rng is not None, "call reset() first"
         rng, n, cfg = self._rng, self.batch, self.cfg
-        self._ray = rng.choice(self._ks, size=n, p=self._kp)
-        self._f = rng.random(n)
+        self._ray_u = rng.random(n)
+        self._f = rng.random(n) ** cfg.radial_power
         self._lat = rng.uniform(-cfg.lateral_spread, cfg.lateral_spread, size=n)
         self._jit = rng.uniform(-self._spread, self._spread, size=n)
         self._anchor_u = rng.random(n)
@@ -264,22 +305,53 @@ class GoalVectorSampler:
         k = self._k
         self._k += 1
         cfg = self.cfg
+        if tree is not None:
+            self._track(tree)
         if self._unif_u[k] < cfg.uniform_fraction:
             x = self._unif[k]
             if self.record:
                 self.log.append((x.copy(), self.UNIFORM_RAY, 0.0, 0.0, 0.0))
             return x
+        ray = int(self._ks[int(np.searchsorted(self._cdf[self.level], self._ray_u[k]))])
         anchor = self.start
-        if tree is not None and tree.n > 1 and self._anchor_u[k] < cfg.tree_anchor_fraction:
-            anchor = tree.xy[int(self._node_u[k] * tree.n)]
+        u = self._anchor_u[k]
+        if tree is not None and tree.n > 1:
+            if u < cfg.frontier_anchor_fraction:
+                anchor = tree.xy[self.best_index]
+            elif u < cfg.frontier_anchor_fraction + cfg.tree_anchor_fraction:
+                anchor = tree.xy[int(self._node_u[k] * tree.n)]
         dx, dy = self.goal[0] - anchor[0], self.goal[1] - anchor[1]
         dist = math.hypot(dx, dy)
-        th = (math.atan2(dy, dx) if dist > 1e-12 else 0.0) + self._ray[k] * self._alpha
+        th = (math.atan2(dy, dx) if dist > 1e-12 else 0.0) + ray * self._alpha
         th += self._jit[k]
         t = self._f[k] * max(cfg.min_range, cfg.range_scale * dist)
         lat = self._lat[k]
         c, s = math.cos(th), math.sin(th)
         x = np.array([anchor[0] + t * c - lat * s, anchor[1] + t * s + lat * c])
         if self.record:
-            self.log.append((anchor.copy(), int(self._ray[k]), t, lat, float(self._jit[k])))
+            self.log.append((anchor.copy(), ray, t, lat, float(self._jit[k])))
         return x
+
+    def _track(self, tree: Tree) -> None:
+        """Update the frontier from nodes added since the last call; widen/narrow the rays."""
+        cfg = self.cfg
+        if tree.n > self._seen:
+            new = tree.xy[self._seen : tree.n]
+            d = np.hypot(new[:, 0] - self.goal[0], new[:, 1] - self.goal[1])
+            i = int(np.argmin(d))
+            improved = d[i] < self._ref - cfg.progress_min
+            if improved:
+                self._ref = float(d[i])
+            if d[i] < self.best_distance:
+                self.best_index, self.best_distance = self._seen + i, float(d[i])
+            self._seen = tree.n
+        else:
+            improved = False
+        if not cfg.adaptive_rays:
+            return
+        if improved:
+            self._stall = 0
+            self.level = cfg.initial_rays
+        else:
+            self._stall += 1
+            self.level = min(cfg.n_rays, cfg.initial_rays + self._stall // cfg.stall_samples)

@@ -56,6 +56,7 @@ def route_subgoal(
     explored_radius: float | None = None,
     pos_attr: str = "anchor_xy",
     weight: str = "weight",
+    goal_node: Any = None,
 ) -> RouteSubgoal:
     """Where the local planner should aim next.
 
@@ -68,6 +69,8 @@ def route_subgoal(
             in the current node's region.
         explored_radius: the goal is "unexplored" if it is farther than this from every anchor
             (default: ``2 * frame_radius``).
+        goal_node: the node whose frame holds the goal, when the caller knows it (e.g. the goal
+            was localised in a frame); default: the node with the nearest anchor.
     Returns:
         :class:`RouteSubgoal`. Pure function: the graph is not modified.
     """
@@ -86,13 +89,18 @@ def route_subgoal(
     cur_xy = node_xy(graph, current_node, pos_attr)
     if np.hypot(*(goal - cur_xy)) <= radius(current_node):
         return RouteSubgoal(goal.copy(), "goal_in_frame", None, [current_node])
-    nodes = list(graph.nodes)
-    xy = np.stack([node_xy(graph, n, pos_attr) for n in nodes])
-    d = np.hypot(*(xy - goal).T)
-    k = int(np.argmin(d))
-    if d[k] > explored:
-        return RouteSubgoal(goal.copy(), "goal_unexplored", None, [])
-    target = nodes[k]
+    if goal_node is not None:
+        if goal_node not in graph:
+            raise ValueError(f"goal node {goal_node!r} is not in the graph")
+        target = goal_node
+    else:
+        nodes = list(graph.nodes)
+        xy = np.stack([node_xy(graph, n, pos_attr) for n in nodes])
+        d = np.hypot(*(xy - goal).T)
+        k = int(np.argmin(d))
+        if d[k] > explored:
+            return RouteSubgoal(goal.copy(), "goal_unexplored", None, [])
+        target = nodes[k]
     try:
         route = nx.shortest_path(graph, current_node, target, weight=weight)
     except nx.NetworkXNoPath:
