@@ -277,3 +277,31 @@ def test_feature_point_protocol_and_errors() -> None:
         topo.add_arc(0, 1, np.eye(4), ODOM_COV)
     with pytest.raises(ValueError, match="empty"):
         describe(np.zeros((0, 3)))
+
+
+def test_topomap_drops_rejected_loops_and_refreshes() -> None:
+    rng = np.random.default_rng(3)
+    gt = square_loop()
+    anchors, odom = drifted_odometry(gt, rng)
+    scene = loop_scene()
+    topo = TopoMap()
+    for k in sorted(anchors):
+        pts = rng.uniform([-0.3, -0.3, 0.0], [0.3, 0.3, 1.0], size=(50, 3)).astype(np.float32)
+        topo.add_frame(LocalFrame(k, anchors[k].copy(), AnalyticFrameMap(scene, gt[k], pts)))
+    for i, j, T, C in odom:
+        topo.add_arc(i, j, T, C)
+    last = len(gt) - 1
+    good = topo.add_loop(last, 0, inv_T(gt[last]) @ gt[0], LOOP_COV)
+    bad = topo.add_loop(16, 2, inv_T(gt[16]) @ gt[2] @ planar_T(1.0, 0.5, 0.4), LOOP_COV)
+    assert len(topo.route(2, 16)) == 2  # the false arc is a shortcut before optimisation
+    cells_before = topo.descriptor(20).cells.copy()
+    res = topo.optimize()
+    assert res.loop_inliers == [True, False] or res.loop_inliers == [False, True]
+    kept = topo.arcs("loop")
+    assert len(kept) == 1 and kept[0][2] is good[2] and kept[0][2] is not bad[2]
+    assert not topo.graph.has_edge(16, 2) and len(topo.route(2, 16)) > 2
+    assert ate({k: topo.anchor(k) for k in topo.frame_ids}, gt) < 0.1
+    # descriptors and regions follow the moved anchors
+    assert not np.array_equal(cells_before, topo.descriptor(20).cells)
+    x, y = topo.anchor(20)[:2, 3]
+    assert 20 in topo.frames_containing(np.array([x, y]), margin=0.5)

@@ -177,7 +177,8 @@ class TopoMap:
         return fid
 
     def refresh(self, fid: int, descriptor: FrameDescriptor | None = None) -> None:
-        """Recompute a frame's region, point count (and descriptor) after its map or anchor changed."""
+        """Recompute a frame's region, point count and (unless one was given) its descriptor,
+        after its map grew or its anchor moved. An explicitly given descriptor is kept."""
         node = self.graph.nodes[fid]
         frame: LocalFrame = node["frame"]
         P, F, _ = unpack_feature_points(frame.map.feature_points())
@@ -188,11 +189,20 @@ class TopoMap:
         else:
             node["region"] = np.full(4, np.nan)
         if descriptor is not None:
-            node["descriptor"] = descriptor
-        elif len(P):
-            node["descriptor"] = describe(Pw, F, self.desc_cfg)
-        else:
-            node["descriptor"] = None
+            node["descriptor"], node["auto_descriptor"] = descriptor, False
+        elif node.get("auto_descriptor", True):
+            node["descriptor"] = describe(Pw, F, self.desc_cfg) if len(P) else None
+            node["auto_descriptor"] = True
+
+    def frames_containing(self, xy: np.ndarray, margin: float = 0.0) -> list[int]:
+        """Frames whose region (grown by ``margin`` m) contains the world point ``xy`` (2,)."""
+        x, y = float(xy[0]), float(xy[1])
+        out = []
+        for fid in self._order:
+            r = self.graph.nodes[fid]["region"]
+            if r[0] - margin <= x <= r[2] + margin and r[1] - margin <= y <= r[3] + margin:
+                out.append(fid)
+        return out
 
     def frame(self, fid: int) -> LocalFrame:
         return self.graph.nodes[fid]["frame"]
@@ -212,7 +222,7 @@ class TopoMap:
         return list(self._order)
 
     # ------------------------------------------------------------------ arcs
-    def _add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray, kind: str) -> None:
+    def _add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray, kind: str) -> tuple:
         for k in (i, j):
             if k not in self.graph:
                 raise ValueError(f"unknown frame {k}")
@@ -228,14 +238,19 @@ class TopoMap:
             e["kinds"].add(kind)
         else:
             self.graph.add_edge(i, j, measurements=[meas], kinds={kind}, weight=length)
+        return meas
 
-    def add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> None:
-        """Odometry arc: pose of frame ``j`` in frame ``i`` with (6, 6) covariance."""
-        self._add_arc(i, j, T_i_j, cov, "odom")
+    def add_arc(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> tuple:
+        """Odometry arc: pose of frame ``j`` in frame ``i`` with (6, 6) covariance.
 
-    def add_loop(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> None:
-        """Loop arc (a verified revisit); call :meth:`optimize` afterwards."""
-        self._add_arc(i, j, T_i_j, cov, "loop")
+        Returns the stored measurement ``(i, j, T_i_j, cov, "odom")``."""
+        return self._add_arc(i, j, T_i_j, cov, "odom")
+
+    def add_loop(self, i: int, j: int, T_i_j: np.ndarray, cov: np.ndarray) -> tuple:
+        """Loop arc (a verified revisit); call :meth:`optimize` afterwards.
+
+        Returns the stored measurement ``(i, j, T_i_j, cov, "loop")``."""
+        return self._add_arc(i, j, T_i_j, cov, "loop")
 
     def arcs(self, kind: str | None = None) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
         out = []
@@ -296,7 +311,16 @@ class TopoMap:
         res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root)
         for k, T in res.anchors.items():
             self.frame(k).T_world_anchor = T
-            self.refresh(k, self.descriptor(k))
+            self.refresh(k)
+        # loop arcs the robust loss rejected leave the map (routing must not use them)
+        rejected = {id(loops[m][2]) for m, ok in enumerate(res.loop_inliers) if not ok}
+        if rejected:
+            for i, j, e in list(self.graph.edges(data=True)):
+                e["measurements"] = [x for x in e["measurements"] if id(x[2]) not in rejected]
+                if not e["measurements"]:
+                    self.graph.remove_edge(i, j)
+                else:
+                    e["kinds"] = {x[4] for x in e["measurements"]}
         return res
 
 
@@ -428,8 +452,12 @@ def close_loop(
         Ad = adjoint(T_cur_cam)  # camera-frame covariance -> covariance of T_i_j
         cov = Ad @ res.covariance @ Ad.T
         cov += np.diag([cfg.cov_floor_rot**2] * 3 + [cfg.cov_floor_trans**2] * 3)
-        topo.add_loop(fid, current, T_i_j, 0.5 * (cov + cov.T))
+        stored = topo.add_loop(fid, current, T_i_j, 0.5 * (cov + cov.T))
         pg = topo.optimize(pose_graph_cfg)
+        if not any(a[2] is stored[2] for a in topo.arcs("loop")):
+            # the pose graph's robust loss threw the new arc out
+            attempts[-1] = LoopAttempt(fid, sim, False, "rejected by the pose graph", res.pose)
+            return LoopClosureResult(None, attempts, None, pg)
         return LoopClosureResult(fid, attempts, T_i_j, pg)
     return LoopClosureResult(None, attempts, None, None)
 
