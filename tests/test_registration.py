@@ -210,3 +210,41 @@ def test_real_tum_frame_to_frame() -> None:
     # measured: 1.4-4.6 mm, 0.06-0.7 deg per pair (ground truth and sensor sync limit it)
     assert max(err_t) < 0.008 and max(err_r) < 1.0, (err_t, err_r)
     assert np.mean(err_r) < 0.6 * np.mean(prior_r)
+
+
+def test_frame_tracker_constant_velocity_and_rebase() -> None:
+    from simn_sim.tracking.tracker import FrameTracker
+
+    rng = np.random.default_rng(9)
+    step = se3_exp(np.array([0.0, np.radians(1.5), 0.0, 0.03, 0.0, 0.01]))  # camera-frame motion
+    poses = [T_TRUE]
+    for _ in range(8):
+        poses.append(poses[-1] @ step)
+    tr = FrameTracker()
+    tr.reset(poses[0], 0.0)
+    for k in range(1, 5):
+        P = render_points(SCENE, poses[k], 3000, rng)
+        res = tr.track(P, SCENE.sdf_and_grad, k / 30.0)
+        et, er = pose_error(res.pose, poses[k])
+        assert res.success and et < 2e-3 and np.degrees(er) < 0.2
+        if k >= 3:  # constant velocity: the prior is already exact, LM needs ~1-2 iterations
+            assert res.iterations <= 3
+    # a new local frame opens at the current camera: its coordinates are T_new_world
+    T_world_new = poses[4]
+    tr.rebase(inv_T(T_world_new))
+    assert np.allclose(tr.pose, np.eye(4), atol=1e-6)  # tracked pose (float32 points)
+
+    def sdf_new(q):
+        s, g, v = SCENE.sdf_and_grad(q @ T_world_new[:3, :3].T + T_world_new[:3, 3])
+        return s, g @ T_world_new[:3, :3], v
+
+    P = render_points(SCENE, poses[5], 3000, rng)
+    res = tr.track(P, sdf_new, 5 / 30.0)
+    et, er = pose_error(T_world_new @ res.pose, poses[5])
+    assert res.success and et < 2e-3 and np.degrees(er) < 0.2 and res.iterations <= 3
+    # a failing map (a single plane): the prediction is kept and the failure counted
+    pred = tr.predict(6 / 30.0)
+    res = tr.track(P, plane_scene().sdf_and_grad, 6 / 30.0)
+    assert not res.success and tr.n_failures == 1 and np.allclose(tr.pose, pred)
+    with pytest.raises(ValueError, match="not after"):
+        tr.track(P, sdf_new, 6 / 30.0)

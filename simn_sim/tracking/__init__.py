@@ -32,11 +32,13 @@ from simn_sim.tracking.topomap import (
     registration_callback,
     similarity,
 )
+from simn_sim.tracking.tracker import FrameTracker
 
 __all__ = [
     "DescriptorConfig",
     "FrameDescriptor",
     "FrameMap",
+    "FrameTracker",
     "FrameTrigger",
     "FrameTriggerConfig",
     "LocalFrame",
