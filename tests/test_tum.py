@@ -206,3 +206,22 @@ def test_depth_odometry_on_real_frames() -> None:
     # measured: ATE 2.5 mm, RPE 3.9 mm / 0.38 deg per frame
     assert m["n_matched"] == 9 and m["ate_rmse_m"] < 0.008
     assert m["rpe_trans_rmse_m"] < 0.008 and m["rpe_rot_rmse_deg"] < 0.8
+
+
+@needs_real
+def test_undistortion(tmp_path: Path) -> None:
+    raw = read_tum(REAL, camera="fr1")[0]
+    und = read_tum(REAL, camera="fr1", undistort=True)[0]
+    assert und.depth.dtype == np.float32 and und.rgb.dtype == np.uint8
+    c = (slice(230, 250), slice(310, 330))  # near the principal point: (almost) unchanged
+    assert np.median(np.abs(und.depth[c] - raw.depth[c])) < 1e-3
+    assert np.mean(und.depth != raw.depth) > 0.2  # elsewhere it moved
+    vals = set(np.unique(raw.depth).tolist())  # nearest neighbour: no new depth values
+    assert set(np.unique(und.depth).tolist()) <= vals | {0.0}
+    intr = Intrinsics(8, 6, 5.0, 5.0, 3.5, 2.5)  # a camera.yaml without distortion: a no-op
+    w = TumWriter(tmp_path / "s", intr)
+    d = np.linspace(0.5, 2.0, 48, dtype=np.float32).reshape(6, 8)
+    w.add(1.0, np.zeros((6, 8, 3), np.uint8), d, np.eye(4))
+    assert np.array_equal(
+        read_tum(tmp_path / "s", undistort=True)[0].depth, read_tum(tmp_path / "s")[0].depth
+    )

@@ -10,7 +10,8 @@ self-describing.
 Frames are associated like the benchmark's ``associate.py``: all (rgb, depth) pairs closer than
 ``max_diff`` seconds are candidates; they are taken greedily by increasing time difference, each
 stamp used at most once. Ground truth is then associated to the frame (rgb) stamps the same way.
-Lens distortion is not removed (the published fr1/fr2 coefficients are kept in ``distortion``).
+Lens distortion is kept by default; ``undistort=True`` remaps colour (bilinear) and depth (nearest
+neighbour, so no depth is invented across edges) with the published coefficients, keeping ``K``.
 """
 
 from __future__ import annotations
@@ -253,7 +254,11 @@ class TumSequence(Sequence[TumFrame]):
     """
 
     def __init__(
-        self, folder: str | Path, camera: str | Path | None = None, max_diff: float = 0.02
+        self,
+        folder: str | Path,
+        camera: str | Path | None = None,
+        max_diff: float = 0.02,
+        undistort: bool = False,
     ) -> None:
         self.folder = Path(folder)
         if not self.folder.is_dir():
@@ -273,6 +278,13 @@ class TumSequence(Sequence[TumFrame]):
             raise TumFormatError(f"camera {camera!r} disagrees with {own}")
         self.camera: TumCamera = cams[0]
         self.intrinsics: Intrinsics = self.camera.intrinsics
+        self._maps = None
+        if undistort and any(abs(d) > 0 for d in self.camera.distortion):
+            intr = self.intrinsics
+            self._maps = cv2.initUndistortRectifyMap(
+                intr.K, np.asarray(self.camera.distortion, dtype=np.float64), None, intr.K,
+                (intr.width, intr.height), cv2.CV_32FC1,
+            )  # fmt: skip
 
         t_rgb, f_rgb = read_file_list(self.folder / "rgb.txt")
         t_dep, f_dep = read_file_list(self.folder / "depth.txt")
@@ -320,6 +332,10 @@ class TumSequence(Sequence[TumFrame]):
         for p, img in ((rp, rgb), (dp, depth)):
             if img.shape[:2] != (h, w):
                 raise TumFormatError(f"image {p} is {img.shape[1]}x{img.shape[0]}, camera {w}x{h}")
+        if self._maps is not None:
+            m1, m2 = self._maps
+            rgb = cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            depth = cv2.remap(depth, m1, m2, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
         return TumFrame(t, td, rgb, depth, self.ground_truth(k), rp, dp)
 
     def __iter__(self) -> Iterator[TumFrame]:
@@ -327,9 +343,14 @@ class TumSequence(Sequence[TumFrame]):
             yield self[k]
 
 
-def read_tum(folder: str | Path, camera: str | Path | None = None, max_diff: float = 0.02):
+def read_tum(
+    folder: str | Path,
+    camera: str | Path | None = None,
+    max_diff: float = 0.02,
+    undistort: bool = False,
+) -> TumSequence:
     """Open a TUM RGB-D folder; see :class:`TumSequence`."""
-    return TumSequence(folder, camera, max_diff)
+    return TumSequence(folder, camera, max_diff, undistort)
 
 
 class TumWriter:
