@@ -10,7 +10,13 @@ from simn_sim.config import ConfigError
 from simn_sim.geometry.se3 import inv_T, pose_error, se3_exp
 from simn_sim.tracking.lie import adjoint, constant_velocity_prior, se3_log
 from simn_sim.tracking.registration import RegistrationConfig, register
-from simn_sim.tracking.synthetic import look_at, office_scene, plane_scene, render_points
+from simn_sim.tracking.synthetic import (
+    AnalyticScene,
+    look_at,
+    office_scene,
+    plane_scene,
+    render_points,
+)
 
 SCENE = office_scene()
 T_TRUE = look_at(np.array([-0.5, -0.8, 1.2]), np.array([1.5, 1.0, 0.6]))
@@ -108,13 +114,24 @@ def test_covariance_matches_monte_carlo(points: np.ndarray) -> None:
     assert np.all(ratio > 0.2) and np.all(ratio < 5.0), ratio
 
 
-def test_single_plane_is_degenerate() -> None:
-    scene = plane_scene()
+@pytest.mark.parametrize("kind", ["plane", "corridor"])
+def test_degenerate_scenes_report_failure(kind: str) -> None:
+    """A single plane (3 free DOF) or a corridor of planes (free along its axis) -> failure."""
+    if kind == "plane":
+        scene = plane_scene()
+    else:
+        scene = AnalyticScene(
+            planes=(
+                (np.array([0.0, 0.0, 1.0]), 0.0),
+                (np.array([0.0, 1.0, 0.0]), -1.0),
+                (np.array([0.0, -1.0, 0.0]), -1.0),
+            )
+        )
     T = look_at(np.array([0.0, 0.0, 1.0]), np.array([2.0, 0.3, 0.0]))
     P = render_points(scene, T, 3000, np.random.default_rng(6))
     T_init = T @ _perturbation(np.random.default_rng(7), 3.0, 0.03)
     res = register(P, scene.sdf_and_grad, T_init)
-    assert not res.success and "degenerate" in res.reason
+    assert not res.success and "degenerate" in res.reason, res.reason
     assert np.array_equal(res.pose, T_init)
     assert np.all(np.diag(res.covariance) >= 1e3)
 
