@@ -128,6 +128,14 @@ def test_door_narrower_than_robot_is_unreachable():
     assert fs.geodesic_distance(s, [-2.0, -2.0]) == pytest.approx(3.2, abs=1e-9)
 
 
+def test_gap_of_exactly_two_radii_is_passable():
+    s, g = np.array([1.25, -2.0]), np.array([1.25, 2.0])
+    exact = FreeSpace2D(wall_with_door(1.0, 1.0 + 2 * R), R, bounds=(-5.0, -5.0, 5.0, 5.0))
+    assert exact.geodesic_distance(s, g) == pytest.approx(4.0, abs=1e-9)
+    narrow = FreeSpace2D(wall_with_door(1.0, 1.0 + 2 * R - 1e-4), R, bounds=(-5.0, -5.0, 5.0, 5.0))
+    assert narrow.geodesic_distance(s, g) == math.inf
+
+
 def test_bounds_force_the_other_way_round():
     s, g = np.array([-3.0, 0.3]), np.array([3.0, 0.3])
     free = FreeSpace2D([square(0, 0, 0.5)], R)

@@ -28,6 +28,9 @@ vertices ON the circle, so this polygon lies between ``(r - 1e-5) * cos(pi / (4 
 quad_segs = 16), never farther. We deliberately do NOT inflate conservatively (by
 ``1 / cos``): the exact tangent points lie at distance exactly ``r`` and must count as free.
 Arcs are tested against the other obstacles at 1-degree samples along the arc.
+Consequence: a gap between obstacles is passable when it is at least ``2 r - 2e-5`` m wide, so
+a gap of exactly ``2 r`` (the robot touching both sides, which generated layouts do contain)
+is passable, and one 0.1 mm narrower is not.
 
 ``clearance`` is exact: the Euclidean distance to the nearest un-inflated footprint.
 """
@@ -200,12 +203,10 @@ class FreeSpace2D:
         self.bounds = bounds
         self.quad_segs = int(quad_segs)
 
+        obstacles = list(obstacles)
         polys: list[shapely.Polygon] = []
-        owners: list[int] = []
         for i, ob in enumerate(obstacles):
-            for p in _as_polygonal(ob, i):
-                polys.append(p)
-                owners.append(i)
+            polys.extend(_as_polygonal(ob, i))
         self._polys = np.array(polys, dtype=object)
         self._tree = shapely.STRtree(self._polys)
         self.n_obstacles = len(obstacles)
