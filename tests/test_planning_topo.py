@@ -81,6 +81,17 @@ def test_no_route_and_pose_attribute() -> None:
     r = route_subgoal(g, 0, [8.5, 0.0], frame_radius=2.0)
     assert r.kind == "node" and r.next_node == 1
     np.testing.assert_allclose(r.xy, [4.0, 1.0])
+    # nodes as stored by simn_sim.tracking.topomap: frame objects with T_world_anchor
+    from types import SimpleNamespace
+
+    h = nx.Graph()
+    for k in range(3):
+        h.add_node(k, frame=SimpleNamespace(T_world_anchor=planar_T(4.0 * k, 0.0, 0.2 * k)))
+    h.add_edge(0, 1, weight=4.0)
+    h.add_edge(1, 2, weight=4.0)
+    r = route_subgoal(h, 0, [8.2, 0.3], frame_radius=1.0)
+    assert r.next_node == 1
+    np.testing.assert_allclose(r.xy, [4.0, 0.0])
     # a node's own radius overrides frame_radius
     g.nodes[0]["radius"] = 10.0
     assert route_subgoal(g, 0, [8.5, 0.0], frame_radius=2.0).kind == "goal_in_frame"

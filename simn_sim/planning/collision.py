@@ -380,11 +380,11 @@ class CollisionChecker:
     def obstacle_polygons(self, simplify: bool = True) -> list:
         """Footprints of the occupied cells as shapely polygons (planning frame, not inflated).
 
-        Each occupied cell is a ``resolution``-sized square; adjacent squares are merged. Inflating
-        these by ``cfg.inflation`` contains the checker's obstacle region (the checker inflates
-        the cell centres), so an exact shortest path around them (e.g. ``FreeSpace2D``) is
-        collision-free here and at most a few centimetres longer than the checker's optimum.
-        ``simplify`` drops collinear vertices of the merged outline.
+        Each occupied cell is a ``resolution``-sized square; adjacent squares are merged. These
+        inflated by ``cfg.inflation`` match the checker's blocked region to within
+        ``resolution * sqrt(2)`` (the checker decides per cell centre), so an exact shortest path
+        around them (e.g. ``FreeSpace2D``) is a reference for the checker's optimum to within a
+        few centimetres per corner. ``simplify`` drops collinear vertices of the merged outline.
         """
         from shapely.geometry import MultiPolygon, box
         from shapely.ops import unary_union

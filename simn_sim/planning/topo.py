@@ -30,8 +30,9 @@ class RouteSubgoal(NamedTuple):
 
 
 def node_xy(graph: nx.Graph, node: Any, pos_attr: str = "anchor_xy") -> np.ndarray:
-    """(2,) position of a node: its ``pos_attr`` (x, y[, ...]) or the translation of its 4x4
-    ``pose`` (``T_common_frame``)."""
+    """(2,) position of a node: its ``pos_attr`` (x, y[, ...]), the translation of its 4x4
+    ``pose`` (``T_common_frame``), or of ``frame.T_world_anchor`` (the tracking topological map's
+    node attribute)."""
     data = graph.nodes[node]
     if pos_attr in data:
         p = np.asarray(data[pos_attr], dtype=np.float64).reshape(-1)
@@ -45,7 +46,11 @@ def node_xy(graph: nx.Graph, node: Any, pos_attr: str = "anchor_xy") -> np.ndarr
         if T.shape == (3, 3):  # SE(2) homogeneous
             return T[:2, 2].copy()
         raise ValueError(f"node {node!r}: pose must be 4x4 or 3x3, got {T.shape}")
-    raise ValueError(f"node {node!r} has neither '{pos_attr}' nor 'pose'")
+    frame = data.get("frame")
+    T = getattr(frame, "T_world_anchor", None)
+    if T is not None:  # simn_sim.tracking.topomap nodes: frame=LocalFrame(T_world_anchor=...)
+        return np.asarray(T, dtype=np.float64)[:2, 3].copy()
+    raise ValueError(f"node {node!r} has neither '{pos_attr}', 'pose' nor 'frame.T_world_anchor'")
 
 
 def route_subgoal(
