@@ -120,6 +120,8 @@ def test_segments_free_matches_dense_point_checks() -> None:
     # sampling at res/2 can only miss a sliver thinner than that; with a 0.5 m inflated wall none
     np.testing.assert_array_equal(got, dense)
     assert got.any() and not got.all()
+    # the scalar grid walk visits the same cells
+    assert [c.segment_free(a, b) for a, b in zip(A, B, strict=True)] == got.tolist()
     # direction-independent, and every sub-segment of a free segment is free
     np.testing.assert_array_equal(c.segments_free(B, A), got)
     t0, t1 = np.sort(rng.uniform(0, 1, size=(2, 300)), axis=0)

@@ -321,10 +321,10 @@ class CollisionChecker:
     def segments_free(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """(N, 2), (N, 2) -> (N,) bool: every cell segment A[i]-B[i] passes through is free.
 
-        Exact grid traversal (vectorised over all segments): the parameters where a segment
-        crosses grid lines split it into pieces that each lie in one cell; the cell of every
-        piece's midpoint is looked up. So a sub-segment of a free segment is free, and the
-        answer does not depend on the direction of the segment."""
+        Exact grid traversal (vectorised over all segments, no sampling): the cells checked are
+        the end points' cells and the two cells on either side of every grid-line crossing,
+        which are exactly the cells the segment passes through. So a sub-segment of a free
+        segment is free, and the answer does not depend on the direction of the segment."""
         a = np.asarray(A, dtype=np.float64).reshape(-1, 2)
         b = np.asarray(B, dtype=np.float64).reshape(-1, 2)
         if a.shape != b.shape:
@@ -338,11 +338,14 @@ class CollisionChecker:
         if not finite.all():
             a = np.where(finite[:, None], a, 0.0)
             b = np.where(finite[:, None], b, 0.0)
-        r = self.cfg.resolution
-        ua, ub = a / r, b / r
+        ua = a / self.cfg.resolution - self.cell_offset  # grid coordinates (cell units)
+        ub = b / self.cfg.resolution - self.cell_offset
         du = ub - ua
-        ts = [np.zeros(n), np.ones(n)]
-        segs = [np.arange(n), np.arange(n)]
+        # cells = the end points' cells + the two cells on either side of every crossing of a
+        # grid line (every cell the segment visits is entered through such a crossing)
+        ci = [np.floor(ua[:, 0]), np.floor(ub[:, 0])]
+        cj = [np.floor(ua[:, 1]), np.floor(ub[:, 1])]
+        owner = [np.arange(n), np.arange(n)]
         for ax in (0, 1):
             lo = np.floor(np.minimum(ua[:, ax], ub[:, ax])) + 1.0
             hi = np.ceil(np.maximum(ua[:, ax], ub[:, ax])) - 1.0
@@ -351,24 +354,52 @@ class CollisionChecker:
             if tot == 0:
                 continue
             sg = np.repeat(np.arange(n), cnt)
-            k = lo[sg] + (np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-            ts.append((k - ua[sg, ax]) / du[sg, ax])
-            segs.append(sg)
-        t = np.concatenate(ts)
-        sg = np.concatenate(segs)
-        order = np.lexsort((t, sg))
-        t, sg = t[order], sg[order]
-        same = sg[:-1] == sg[1:]
-        mid = 0.5 * (t[:-1] + t[1:])[same]
-        ms = sg[:-1][same]
-        pts = a[ms] + (b[ms] - a[ms]) * mid[:, None]
-        i, j = self._cells(pts)
-        bad = np.bincount(ms[self.blocked[i, j]], minlength=n) > 0
+            line = lo[sg] + (np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+            other = np.floor(ua[sg, 1 - ax] + (line - ua[sg, ax]) / du[sg, ax] * du[sg, 1 - ax])
+            for side in (line - 1.0, line):
+                (ci if ax == 0 else cj).append(side)
+                (cj if ax == 0 else ci).append(other)
+                owner.append(sg)
+        nx, ny = self.shape
+        i = np.clip(np.concatenate(ci), 0, nx - 1).astype(np.int64)
+        j = np.clip(np.concatenate(cj), 0, ny - 1).astype(np.int64)
+        hit = np.concatenate(owner)[self.blocked[i, j]]
+        bad = np.bincount(hit, minlength=n) > 0
         return finite & ~bad
 
     def segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """One segment a (2,) -> b (2,)."""
-        return bool(self.segments_free(np.asarray(a)[None], np.asarray(b)[None])[0])
+        """One segment a (2,) -> b (2,): same cells as :meth:`segments_free`, visited by a scalar
+        grid walk (Amanatides-Woo), which is ~10x faster than the vectorised call for one short
+        segment (smoothing, OMPL's motion validator, the follower)."""
+        r = self.cfg.resolution
+        ox, oy = int(self.cell_offset[0]), int(self.cell_offset[1])
+        x0, y0 = float(a[0]) / r - ox, float(a[1]) / r - oy
+        x1, y1 = float(b[0]) / r - ox, float(b[1]) / r - oy
+        if not all(map(math.isfinite, (x0, y0, x1, y1))):
+            return False
+        blocked = self.blocked
+        nx, ny = blocked.shape
+        if nx == 0:
+            return True
+        i, j = math.floor(x0), math.floor(y0)
+        i1, j1 = math.floor(x1), math.floor(y1)
+        dx, dy = x1 - x0, y1 - y0
+        si = 1 if dx > 0 else -1
+        sj = 1 if dy > 0 else -1
+        tdx = abs(1.0 / dx) if dx != 0 else math.inf
+        tdy = abs(1.0 / dy) if dy != 0 else math.inf
+        tx = ((i + 1 - x0) if dx > 0 else (x0 - i)) * tdx if dx != 0 else math.inf
+        ty = ((j + 1 - y0) if dy > 0 else (y0 - j)) * tdy if dy != 0 else math.inf
+        for _ in range(abs(i1 - i) + abs(j1 - j) + 1):
+            if blocked[min(max(i, 0), nx - 1), min(max(j, 0), ny - 1)]:
+                return False
+            if tx < ty:
+                tx += tdx
+                i += si
+            else:
+                ty += tdy
+                j += sj
+        return True
 
     def path_free(self, path: np.ndarray) -> bool:
         """(M, 2) polyline is free (every vertex and every segment)."""
