@@ -146,21 +146,27 @@ class RRTStar:
             sel = np.argpartition(d, cfg.max_neighbours - 1)[: cfg.max_neighbours]
             near, d = near[sel], d[sel]
         c = tree.cost[near] + d
-        # check candidates cheapest first, in one batch: all are needed again for rewiring
-        free = self.checker.segments_free(tree.xy[near], np.broadcast_to(x_new, (len(near), 2)))
-        if not free.any():
+        # choose-parent, lazily: check edges cheapest first and stop at the first free one
+        seg_free = self.checker.segment_free
+        xy = tree.xy
+        k = -1
+        for m in np.argsort(c, kind="stable"):
+            if seg_free(xy[near[m]], x_new):
+                k = int(m)
+                break
+        if k < 0:
             return -1
-        c_free = np.where(free, c, np.inf)
-        k = int(np.argmin(c_free))
         i_new = tree.add(x_new, int(near[k]), float(d[k]))
         c_new = tree.cost[i_new]
-        # rewire: neighbours that become cheaper through the new node
-        better = free & (c_new + d < tree.cost[near] - 1e-12)
-        better[k] = False
-        for j, dj in zip(near[better], d[better], strict=True):
+        # rewire: neighbours that become cheaper through the new node (edge checked only then)
+        cand = np.nonzero(c_new + d < tree.cost[near] - 1e-12)[0]
+        for m in cand:
+            if m == k:
+                continue
+            j, dj = int(near[m]), float(d[m])
             # cost of j may have dropped through an earlier rewire in this loop; re-check
-            if c_new + dj < tree.cost[j] - 1e-12:
-                tree.rewire(int(j), i_new, float(dj))
+            if c_new + dj < tree.cost[j] - 1e-12 and seg_free(tree.xy[i_new], tree.xy[j]):
+                tree.rewire(j, i_new, dj)
         return i_new
 
     def plan(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
