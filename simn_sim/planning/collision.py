@@ -31,6 +31,7 @@ from scipy import ndimage
 
 from simn_sim.config import Config, require
 from simn_sim.geometry.se3 import transform_points
+from simn_sim.semantics import OBSTACLE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,8 +48,9 @@ class CollisionConfig(Config):
     """Lowest point height (planning frame z, up) that can hit the robot."""
     z_max: float = 1.5
     """Highest point height that can hit the robot."""
-    obstacle_labels: tuple[int, ...] = (1,)
-    """Semantic labels that count as obstacles (everything else, e.g. floor = 0, is ignored)."""
+    obstacle_labels: tuple[int, ...] = (OBSTACLE,)
+    """Semantic labels that count as obstacles (``simn_sim.semantics``: OBSTACLE = 2; FLOOR,
+    OVERHEAD and UNKNOWN are ignored)."""
     max_clearance: float = 2.0
     """Clearance values are capped here; the incremental update window is padded by it."""
     grow_padding: float = 2.5

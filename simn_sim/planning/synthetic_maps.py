@@ -1,8 +1,8 @@
 """Synthetic labelled point maps for planner tests and benchmarks (world x-y-z metres, z up).
 
 Walls and boxes are sampled as vertical point sheets (spacing ``spacing``) from the floor to
-``height`` and labelled obstacle (1); a sparse floor (label 0) is added so label filtering is
-exercised. Each map also returns its obstacle footprints as shapely polygons (the exact geometry
+``height`` and labelled ``simn_sim.semantics.OBSTACLE``; a sparse floor (``FLOOR``) is added so
+label filtering is exercised. Each map also returns its obstacle footprints as shapely polygons (the exact geometry
 the points were sampled from) for exact shortest-path references.
 """
 
@@ -14,8 +14,7 @@ from typing import Any
 import networkx
 import numpy as np
 
-FLOOR = 0
-OBSTACLE = 1
+from simn_sim.semantics import FLOOR, OBSTACLE  # labels shared with the mapper
 
 
 @dataclasses.dataclass
