@@ -167,3 +167,19 @@ def test_bad_points_raise() -> None:
         c.update(np.zeros((5, 4)))
     with pytest.raises(ValueError, match="T_common_frame"):
         c.update(np.zeros((5, 2)), T_common_frame=np.eye(4))
+
+
+def test_obstacle_polygons_give_freespace_reference() -> None:
+    fs_mod = pytest.importorskip("simn_sim.geometry.freespace")
+    from simn_sim.planning.synthetic_maps import doorway_map
+
+    m = doorway_map()
+    c = CollisionChecker()
+    c.update(m.points, m.labels)
+    fs = fs_mod.FreeSpace2D(c.obstacle_polygons(), robot_radius=c.cfg.inflation, bounds=m.bounds)
+    d = fs.geodesic_distance(np.array([2.0, 2.0]), np.array([8.0, 2.0]))
+    # analytic on the true walls: 6.959 m (tangents + arc around the door jamb); the cell
+    # footprints are up to one cell bigger
+    assert 6.959 - 0.01 <= d <= 6.959 + 0.1
+    path = fs.shortest_path(np.array([2.0, 2.0]), np.array([8.0, 2.0]))
+    assert path is not None and path[:, 1].max() > 3.5  # through the doorway
