@@ -42,11 +42,11 @@ class RegistrationConfig(Config):
     max_iters: int = 30
     lambda_reg: float = 1e-3  # initial and minimum LM damping (paper: 1e-3)
     lambda_up: float = 10.0  # damping factor after a rejected step
-    max_rejects: int = 6  # consecutive rejected steps before giving up on improving
+    max_rejects: int = 3  # rejected steps (damping x lambda_up each) before declaring a minimum
     gm_scale: float = 0.02  # Geman-McClure scale floor c (m); tuned, see docs/tracking.md
     gm_mad_factor: float = 5.0  # adaptive scale c = max(gm_scale, factor * 1.4826 * MAD)
-    tol_rot: float = 1e-5  # convergence: step rotation (rad)
-    tol_trans: float = 1e-5  # convergence: step translation (m)
+    tol_rot: float = 1e-4  # convergence: step rotation (rad)
+    tol_trans: float = 1e-4  # convergence: step translation (m)
     grad_norm_min: float = 0.5  # valid SDF gradient norm range (true SDF: 1)
     grad_norm_max: float = 1.5
     min_valid_points: int = 100
@@ -250,20 +250,23 @@ def register(
     lam = cfg.lambda_reg
     converged = False
     it = 0
-    rejects = 0
-    while it < cfg.max_iters:
+    while it < cfg.max_iters and not converged:
         it += 1
         c = _scale(ev["r"], ev["valid"], cfg)
         H, b, cen, _ = _normal_equations(ev, c)
         cost = _gm_cost(ev["r"], ev["valid"], c)
         accepted = False
-        while rejects < cfg.max_rejects:
+        for _ in range(cfg.max_rejects):
             try:
                 dxi = -np.linalg.solve(H + lam * np.eye(6), b)
             except np.linalg.LinAlgError:
                 lam *= cfg.lambda_up
-                rejects += 1
                 continue
+            # a step below the tolerances is not worth an SDF evaluation: converged
+            # (the rotation is about the points' centroid, so |v| is the centroid's motion)
+            if np.linalg.norm(dxi[:3]) < cfg.tol_rot and np.linalg.norm(dxi[3:]) < cfg.tol_trans:
+                converged = True
+                break
             Tc = np.eye(4)
             Tc[:3, 3] = cen
             T_new = Tc @ se3_exp(dxi) @ inv_T(Tc) @ T
@@ -271,20 +274,12 @@ def register(
             if _gm_cost(ev_new["r"], ev_new["valid"], c) <= cost:
                 T, ev = T_new, ev_new
                 lam = max(cfg.lambda_reg, lam / cfg.lambda_up)
-                rejects = 0
                 accepted = True
                 break
             lam *= cfg.lambda_up
-            rejects += 1
-        if not accepted:
-            break  # no step decreases the cost: at a (local) minimum
-        rot = float(np.linalg.norm(dxi[:3]))
-        trans = float(np.linalg.norm(dxi[3:]))  # motion of the points' centroid
-        if rot < cfg.tol_rot and trans < cfg.tol_trans:
-            converged = True
+        if not accepted and not converged:
+            converged = True  # no step decreases the cost: at a (local) minimum
             break
-    if not accepted and rejects >= cfg.max_rejects:
-        converged = True  # cannot improve further
 
     nv = int(ev["valid"].sum())
     if nv < min_valid:
