@@ -84,6 +84,11 @@ def test_incremental_update_equals_batch_build_and_grid_grows() -> None:
     np.testing.assert_array_equal(inc.occupied[sl], batch.occupied)
     np.testing.assert_allclose(inc.dist[sl], batch.dist, atol=1e-6)
     assert np.mean(inc.is_free(q) == batch.is_free(q)) > 0.995
+    # reset + rebuild (after anchors moved) gives the batch map again
+    inc.reset()
+    assert inc.is_free(q).all() and inc.n_points == 0 and inc.shape == (0, 0)
+    inc.update(obst)
+    np.testing.assert_array_equal(inc.is_free(q), batch.is_free(q))
     # clearance is the distance to the occupied cell centre nearest to q's cell centre: never
     # below the true nearest distance, and above it by at most 2 |q - cell centre| = res sqrt(2)
     centres = inc.occupied_centres()

@@ -101,22 +101,27 @@ class CollisionChecker:
             within ``max_clearance``).
         dist: (nx, ny) float32, centre-to-centre distance to ``nearest`` in metres (capped).
         blocked: (nx, ny) bool, ``dist <= cfg.inflation``: the robot centred in the cell collides.
+        cell_offset: (2,) int64 global cell index of grid cell (0, 0).
+        n_points: number of obstacle points absorbed so far.
     The outermost cells are never blocked (the grid is padded by more than ``max_clearance``),
     which lets queries outside the grid be clipped to its border: unknown space is free.
     """
 
     def __init__(self, cfg: CollisionConfig | None = None) -> None:
         self.cfg = cfg if cfg is not None else CollisionConfig()
+        self.reset()
+
+    # ------------------------------------------------------------------ map building
+    def reset(self) -> None:
+        """Forget all obstacles, e.g. before rebuilding after a pose-graph update moved the
+        local frames' anchors (the grid cannot move points it has absorbed)."""
         self.cell_offset = np.zeros(2, dtype=np.int64)
-        """Global cell index of grid cell (0, 0)."""
         self.occupied = np.zeros((0, 0), dtype=bool)
         self.nearest = np.full((2, 0, 0), -1, dtype=np.int32)
         self.dist = np.zeros((0, 0), dtype=np.float32)
         self.blocked = np.zeros((0, 0), dtype=bool)
         self.n_points = 0
-        """Number of obstacle points absorbed so far."""
 
-    # ------------------------------------------------------------------ map building
     @property
     def origin(self) -> np.ndarray:
         return self.cell_offset * self.cfg.resolution
