@@ -226,10 +226,13 @@ class UniformSampler(_Batched):
 class GoalVectorSampler:
     """Goal-vector ray samples (plus an optional uniform fraction over a local window).
 
-    The rays start at an *anchor*: the start (the robot, as in the paper) or, with probability
-    ``cfg.tree_anchor_fraction``, a random node of the growing tree, so the goal vector is also
-    cast from places the tree has already reached (around a wall, through a doorway).
-    ``tree_anchor_fraction = 0`` is the paper's sampler exactly.
+    The rays start at an *anchor*: the frontier (the tree node nearest the goal) with probability
+    ``cfg.frontier_anchor_fraction``, a random tree node with ``cfg.tree_anchor_fraction``, else
+    the start (the robot, as in the paper), so the goal vector is also cast from places the tree
+    has already reached (around a wall, through a doorway). With ``cfg.adaptive_rays`` only the
+    rays ``|k| <= level`` are drawn; ``level`` opens while the frontier stalls (see
+    :class:`GoalVectorConfig`). Both anchor fractions 0 and ``adaptive_rays=False`` is the
+    paper's sampler.
 
     Random numbers are drawn in batches from the generator given to :meth:`reset`. If
     ``record`` is set, every sample is logged in ``self.log`` as
