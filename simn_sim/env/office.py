@@ -153,7 +153,9 @@ class _People:
 
     def __init__(self, fs: FreeSpace2D, n: int, rng: np.random.Generator, speed=(0.8, 1.3)):
         self.fs, self.rng = fs, rng
-        self.pos = fs.sample_free(rng, n, min_clearance=0.1) if n else np.zeros((0, 2))
+        self.pos = (
+            fs.sample_free(rng, n, min_clearance=ROBOT_RADIUS + 0.1) if n else np.zeros((0, 2))
+        )
         self.paths: list[np.ndarray] = [np.zeros((0, 2))] * n
         self.speed = rng.uniform(*speed, size=n)
         for i in range(n):
@@ -161,7 +163,7 @@ class _People:
 
     def _new_target(self, i: int) -> None:
         for _ in range(20):
-            tgt = self.fs.sample_free(self.rng, 1, min_clearance=0.1)[0]
+            tgt = self.fs.sample_free(self.rng, 1, min_clearance=ROBOT_RADIUS + 0.1)[0]
             path = self.fs.shortest_path(self.pos[i], tgt)
             if path is not None and len(path) >= 2:
                 self.paths[i] = path[1:]
@@ -340,7 +342,7 @@ class SimnOfficeEnv(gym.Env):
         self._steps = 0
         self._collisions_people = 0
         self._prev_geo = geo0
-        self.metrics = EpisodeMetrics()
+        self.metrics = EpisodeMetrics(dt=self.dt)
         self.metrics.reset(start[:2], geo0)
         obs = self._observe()
         info = self._info(collided=False, geo=geo0)
@@ -351,7 +353,7 @@ class SimnOfficeEnv(gym.Env):
     def _sample_episode(self) -> EpisodeSpec:
         rng = self.np_random
         fs = self.free_space
-        margin = self.cfg.start_clearance
+        margin = ROBOT_RADIUS + self.cfg.start_clearance
         for _ in range(200):
             s = fs.sample_free(rng, 1, min_clearance=margin)[0]
             field = fs.distance_field_to(s)
@@ -437,7 +439,6 @@ class SimnOfficeEnv(gym.Env):
         if terminated or truncated:
             reason = "success" if success else ("collisions" if too_many else "timeout")
             final = self.metrics.finish(reason, dist, geo, self.cfg.success_distance)
-            final["sim_time_s"] = self._steps * self.dt
             final["collisions_with_people"] = self._collisions_people
             final["episode_id"] = self._episode.episode_id
             info["episode"] = final

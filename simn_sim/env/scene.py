@@ -56,6 +56,8 @@ def build_scene(
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
     spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
     spec.visual.quality.shadowsize = 0
+    # no MSAA: a multisampled depth buffer resolves to biased depth (mm errors), and it costs time
+    spec.visual.quality.offsamples = 0
 
     floor_tex = spec.add_texture(
         name="floor_tex",

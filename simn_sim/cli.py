@@ -1,0 +1,211 @@
+"""The ``simn-sim`` command line.
+
+simn-sim demo --out runs/demo            one headless episode: episodes.jsonl, config.json, .rrd
+simn-sim episodes --out F --n 20 ...     sample a fixed, seeded episode set (JSON data)
+simn-sim compare BASE.jsonl NEW.jsonl    regression check of two batches (non-zero on regression)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+DEFAULT_AGENT = "simn"
+
+
+def _env_cfg(args: argparse.Namespace) -> dict[str, Any]:
+    cfg: dict[str, Any] = {}
+    if getattr(args, "config", None):
+        import yaml
+
+        from simn_sim.config import ConfigError
+
+        try:
+            cfg = yaml.safe_load(Path(args.config).read_text()) or {}
+        except (OSError, yaml.YAMLError) as e:
+            raise ConfigError(f"cannot read config file {args.config}: {e}") from e
+        if not isinstance(cfg, dict):
+            raise ConfigError(f"config file {args.config} must hold a mapping")
+    for key in ("width", "height", "layout_seed", "max_episode_steps"):
+        v = getattr(args, key, None)
+        if v is not None:
+            cfg[key] = v
+    if getattr(args, "noise", None):
+        cfg["depth_noise"] = {**cfg.get("depth_noise", {}), "model": args.noise}
+    return cfg
+
+
+def _resolve_agent(name: str | None) -> str:
+    from simn_sim.agents import agent_names
+
+    names = agent_names()
+    if name is None:
+        return DEFAULT_AGENT if DEFAULT_AGENT in names else "oracle"
+    if name not in names:
+        raise ValueError(f"unknown agent {name!r}; valid agents: {names}")
+    return name
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    from simn_sim.env.episodes import EpisodeSet
+    from simn_sim.experiments.runner import run_episode, write_json
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    env_cfg = _env_cfg(args)
+    agent = _resolve_agent(args.agent)
+    episode = None
+    if args.episode_file:
+        eps = EpisodeSet.load(args.episode_file).episodes
+        episode = eps[args.episode_index].to_dict()
+    env = gym.make(args.env, config=env_cfg)
+    resolved = {
+        "env_id": args.env,
+        "env": env.unwrapped.cfg.to_dict(),
+        "agent": agent,
+        "agent_config": {},
+        "seed": args.seed,
+        "episode": episode,
+    }
+    rrd = None if args.no_rerun else out / "episode.rrd"
+    with tqdm(
+        total=env.unwrapped.cfg.max_episode_steps, desc=f"demo ({agent})", unit="step"
+    ) as bar:
+        rec = run_episode(
+            args.env,
+            env.unwrapped.cfg,
+            agent,
+            {},
+            episode=episode,
+            seed=args.seed,
+            rerun_path=rrd,
+            progress=bar,
+            env=env,
+        )
+    env.close()
+    write_json(out / "config.json", resolved)
+    with open(out / "episodes.jsonl", "w") as f:
+        f.write(json.dumps(rec, default=str) + "\n")
+    if rec["error"]:
+        print(rec["error"], file=sys.stderr)
+        return 1
+    print(
+        f"{rec['episode_id']}: termination={rec['termination']} success={rec['success']} "
+        f"spl={rec['spl']:.3f} path={rec['path_length_m']:.2f} m geodesic={rec['geodesic_distance_m']:.2f} m "
+        f"collisions={rec['collisions']} steps={rec['steps']}"
+    )
+    print(f"wrote {out / 'episodes.jsonl'}, {out / 'config.json'}" + (f", {rrd}" if rrd else ""))
+    return 0
+
+
+def cmd_episodes(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    from simn_sim.env.episodes import EpisodeSet, EpisodeSpec
+
+    layouts = [None if s < 0 else s for s in args.layouts]
+    eps: list[EpisodeSpec] = []
+    with tqdm(total=args.n * len(layouts), desc="sampling episodes") as bar:
+        for lay in layouts:
+            env = gym.make(
+                args.env,
+                config={
+                    "width": 64,
+                    "height": 48,
+                    "layout_seed": lay,
+                    "min_geodesic": args.min_geodesic,
+                    "max_geodesic": args.max_geodesic,
+                },
+            )
+            for i in range(args.n):
+                seed = args.seed * 10007 + (0 if lay is None else lay + 1) * 1000 + i
+                _, info = env.reset(seed=seed)
+                spec = info["episode_spec"]
+                tag = "ref" if lay is None else f"L{lay}"
+                eps.append(
+                    EpisodeSpec(
+                        f"{args.prefix}-{tag}-{i:03d}",
+                        lay,
+                        tuple(spec["start"]),
+                        tuple(spec["goal"]),
+                        seed,
+                    )
+                )
+                bar.update(1)
+            env.close()
+    EpisodeSet(args.env, eps).save(args.out)
+    print(f"wrote {len(eps)} episodes to {args.out}")
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from simn_sim.experiments.compare import main as compare_main
+
+    return compare_main(args.rest)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="simn-sim", description="SIMN navigation testbed")
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    d = sub.add_parser(
+        "demo", help="run one headless episode, write metrics, config and a rerun recording"
+    )
+    d.add_argument("--out", required=True)
+    d.add_argument("--env", default="SimnOffice-v0")
+    d.add_argument("--agent", default=None, help="simn (default), rrtstar or oracle")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--episode-file", default=None)
+    d.add_argument("--episode-index", type=int, default=0)
+    d.add_argument("--config", default=None, help="YAML file of env config values")
+    d.add_argument("--width", type=int)
+    d.add_argument("--height", type=int)
+    d.add_argument("--layout-seed", dest="layout_seed", type=int)
+    d.add_argument("--max-episode-steps", dest="max_episode_steps", type=int)
+    d.add_argument("--noise", choices=["none", "d435i"])
+    d.add_argument("--no-rerun", action="store_true")
+    d.set_defaults(func=cmd_demo)
+
+    e = sub.add_parser("episodes", help="sample a fixed, seeded episode set")
+    e.add_argument("--out", required=True)
+    e.add_argument("--env", default="SimnOffice-v0")
+    e.add_argument("--n", type=int, default=10, help="episodes per layout")
+    e.add_argument(
+        "--layouts",
+        type=int,
+        nargs="+",
+        default=[-1],
+        help="layout seeds; -1 is the reference office",
+    )
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--prefix", default="ep")
+    e.add_argument("--min-geodesic", type=float, default=3.0)
+    e.add_argument("--max-geodesic", type=float, default=12.0)
+    e.set_defaults(func=cmd_episodes)
+
+    c = sub.add_parser(
+        "compare", help="compare two episodes.jsonl files (regression gate)", add_help=False
+    )
+    c.add_argument("rest", nargs=argparse.REMAINDER)
+    c.set_defaults(func=cmd_compare)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError) as e:
+        print(f"simn-sim {args.cmd}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
