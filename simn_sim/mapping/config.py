@@ -157,6 +157,9 @@ class TrainingConfig(Config):
     use_replay: bool = True
     use_ewc: bool = True
     fisher_samples: int = 2048
+    # Divide each consolidated Fisher by its mean, so ewc_weight is a stiffness relative to
+    # the average parameter importance rather than tied to the loss scale.
+    ewc_normalize: bool = True
     max_pending: int = 60_000  # samples kept between training calls (uniform subset)
 
     def validate(self) -> None:

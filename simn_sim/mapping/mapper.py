@@ -12,6 +12,7 @@ no SDF: NaN and ``valid = False``).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from pathlib import Path
@@ -67,6 +68,21 @@ class SdfQuery:
     sdf: np.ndarray | torch.Tensor
     grad: np.ndarray | torch.Tensor | None
     valid: np.ndarray | torch.Tensor
+
+
+@contextlib.contextmanager
+def flush_denormals():
+    """Flush denormal floats to zero while training.
+
+    Adam's second moments of tiny gradients underflow to denormals, which make CPU arithmetic
+    ~10x slower. The flag is process-wide and breaks other code (scipy's cKDTree segfaults on
+    planar data with it), so it is set only inside the training loop and cleared afterwards.
+    """
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
 
 
 def check_pose(T: np.ndarray, name: str = "T_map_cam") -> np.ndarray:
@@ -129,9 +145,6 @@ class ImplicitMap:
         generator: torch.Generator | None = None,
     ) -> None:
         self.cfg = cfg or MapperConfig()
-        # Adam's second moments of tiny gradients underflow to denormals, which make CPU
-        # arithmetic ~10x slower; flushing them to zero changes no result that matters.
-        torch.set_flush_denormal(True)
         self.device = torch.device(self.cfg.device)
         if generator is None:
             generator = torch.Generator(device=self.device).manual_seed(self.cfg.seed)
@@ -270,6 +283,10 @@ class ImplicitMap:
         ``max_iters``. Features of the neural points touched by the batch and the decoder
         weights are updated by Adam. Afterwards the new samples join the replay pool.
         """
+        with flush_denormals():
+            return self._train(max_iters)
+
+    def _train(self, max_iters: int | None) -> TrainResult:
         tc = self.cfg.training
         t0 = time.perf_counter()
         cap = tc.max_iters if max_iters is None else int(max_iters)
@@ -401,6 +418,9 @@ class ImplicitMap:
         fisher = diagonal_fisher(
             self.decoder, (f, c, pin), S, lambda out, y: bce_sdf_loss(out, y, sigma)
         )
+        if self.cfg.training.ewc_normalize:
+            mean = torch.cat([v.reshape(-1) for v in fisher.values()]).mean().clamp(min=1e-30)
+            fisher = {k: v / mean for k, v in fisher.items()}
         self.ewc.consolidate(self.decoder, fisher)
         self._recent = ReplayPool(self.cfg.training.fisher_samples, self.device)
 
@@ -480,11 +500,16 @@ class ImplicitMap:
         n += sum(t.numel() * t.element_size() for tri in self._pending for t in tri)
         return int(n)
 
-    def extract_mesh(self, resolution: float = 0.02, bounds: np.ndarray | None = None):
+    def extract_mesh(
+        self,
+        resolution: float = 0.02,
+        bounds: np.ndarray | None = None,
+        max_distance: float | None = None,
+    ):
         """Zero level set as a triangle mesh (marching cubes); see :func:`mesh.extract_mesh`."""
         from simn_sim.mapping.mesh import extract_mesh
 
-        return extract_mesh(self, resolution=resolution, bounds=bounds)
+        return extract_mesh(self, resolution, bounds, max_distance)
 
     # ------------------------------------------------------------------ sibling maps
     def new_map(self, share_decoder: bool = True) -> ImplicitMap:

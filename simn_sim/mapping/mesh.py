@@ -6,6 +6,7 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
+import torch
 from scipy import ndimage
 from skimage import measure
 
@@ -23,13 +24,18 @@ class Mesh:
 
 
 def extract_mesh(
-    imap: ImplicitMap, resolution: float = 0.02, bounds: np.ndarray | None = None
+    imap: ImplicitMap,
+    resolution: float = 0.02,
+    bounds: np.ndarray | None = None,
+    max_distance: float | None = None,
 ) -> Mesh:
     """Marching cubes on the SDF sampled on a grid of ``resolution`` metres.
 
-    Only grid nodes within the search radius of a neural point are queried (the rest has no
-    SDF); ``bounds`` (2, 3) [min, max] defaults to the points' bounding box plus that radius.
-    Returns an empty mesh when there is no zero crossing.
+    Only grid nodes within ``max_distance`` of a neural point are used (default: 1.5 neural
+    voxels; the surface passes through the points, and farther away the field is an
+    extrapolation that can cross zero spuriously). ``bounds`` (2, 3) [min, max] defaults to
+    the points' bounding box plus that distance. Returns an empty mesh when there is no zero
+    crossing.
     """
     if resolution <= 0:
         raise ValueError(f"resolution must be > 0, got {resolution}")
@@ -39,7 +45,8 @@ def extract_mesh(
     )
     if pos.shape[0] == 0:
         return empty
-    r = imap.cfg.points.search_radius
+    r = 1.5 * imap.cfg.points.voxel_size if max_distance is None else float(max_distance)
+    r = min(r, imap.cfg.points.search_radius)
     if bounds is None:
         bounds = np.stack([pos.min(0) - r, pos.max(0) + r])
     lo, hi = np.asarray(bounds, np.float64)
@@ -49,12 +56,15 @@ def extract_mesh(
     ijk = np.round((pos - lo) / resolution).astype(int)
     inside = np.all((ijk >= 0) & (ijk < shape), axis=1)
     occ[tuple(ijk[inside].T)] = True
-    rad = max(int(np.floor(r / resolution)) - 1, 1)
+    rad = max(int(np.ceil(r / resolution)), 1)
     g = np.arange(-rad, rad + 1)
     ball = (g[:, None, None] ** 2 + g[None, :, None] ** 2 + g[None, None, :] ** 2) <= rad**2
     near = ndimage.binary_dilation(occ, structure=ball)
     nodes = np.argwhere(near)
     xyz = (lo + nodes * resolution).astype(np.float32)
+    _, d2 = imap.points.knn(torch.from_numpy(xyz))
+    close = (d2[:, 0] <= r * r).cpu().numpy()
+    nodes, xyz = nodes[close], xyz[close]
     q = imap.query(xyz)
     vol = np.full(shape, np.nan, np.float32)
     vol[tuple(nodes.T)] = q.sdf
@@ -66,7 +76,16 @@ def extract_mesh(
         v, f, n, _ = measure.marching_cubes(fill, level=0.0, spacing=(resolution,) * 3, mask=mask)
     except (ValueError, RuntimeError):
         return empty
-    return Mesh((v + lo).astype(np.float32), f.astype(np.int32), n.astype(np.float32))
+    v = (v + lo).astype(np.float32)
+    # Faces at the edge of the mask interpolate towards the fill value: their vertices are not
+    # zeros of the field. Keep faces whose three vertices are (near) zeros of the map's SDF.
+    sv = imap.sdf(v)
+    good_v = np.isfinite(sv) & (np.abs(sv) <= 0.5 * resolution)
+    f = f[good_v[f].all(axis=1)]
+    used = np.unique(f)
+    remap = np.full(len(v), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return Mesh(v[used], remap[f].astype(np.int32), n[used].astype(np.float32))
 
 
 def log_mesh(entity_path: str, mesh: Mesh, color: tuple[int, int, int] = (180, 180, 200)) -> None:

@@ -213,7 +213,7 @@ class NeuralPointMap:
         k, r = self.cfg.k_neighbors, self.cfg.search_radius
         q = x.shape[0]
         cell = torch.floor(x / r).long()
-        keys = pack_keys(cell[:, None, :] + self._off27[None])  # (Q, 27)
+        keys = pack_keys(cell[:, None, :] + self._off27[None]).contiguous()  # (Q, 27)
         nb = self._bkeys.numel()
         pos = torch.searchsorted(self._bkeys, keys).clamp(max=nb - 1)
         found = self._bkeys[pos] == keys
