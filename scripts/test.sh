@@ -3,6 +3,6 @@
 # Extra arguments go to pytest, e.g. `bash scripts/test.sh -m slow`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-SIMN_EXTRAS="${SIMN_EXTRAS:-dev,slam}" bash scripts/setup.sh
+SIMN_EXTRAS="${SIMN_EXTRAS:-dev,slam,ray}" bash scripts/setup.sh
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 exec .venv/bin/python -m pytest -q "$@"
