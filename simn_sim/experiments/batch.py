@@ -63,6 +63,7 @@ __all__ = [
     "EpisodeTask",
     "batch_main",
     "build_parser",
+    "make_env",
     "read_records_lenient",
     "regression_episode_file",
     "resolve_env_config",
@@ -145,7 +146,7 @@ def _peak_rss_mb() -> float:
     return kb / 1024.0 if sys.platform != "darwin" else kb / 2**20
 
 
-def _make_env(env_id: str, env_cfg: dict[str, Any]) -> Any:
+def make_env(env_id: str, env_cfg: dict[str, Any]) -> Any:
     """``gym.make`` where the resolved config wins over the variant's registered kwargs."""
     import gymnasium as gym
 
@@ -163,7 +164,7 @@ def _cached_env(env_id: str, env_cfg: dict[str, Any]) -> Any:
         for old in _ENV_CACHE.values():  # one env per worker: free the GL context first
             old.close()
         _ENV_CACHE.clear()
-        env = _make_env(env_id, env_cfg)
+        env = make_env(env_id, env_cfg)
         _ENV_CACHE[key] = env
     return env
 
@@ -315,7 +316,7 @@ def sample_episodes(
     ``seed-<seed+i>`` and ``seed`` set, so they can be stored, resumed and re-run exactly.
     Sampling renders at 64x48 (start/goal sampling does not depend on the image size)."""
     small = {**env_cfg, "width": 64, "height": 48}
-    env = _make_env(env_id, small)
+    env = make_env(env_id, small)
     try:
         out = []
         for i in range(n):

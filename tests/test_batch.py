@@ -1,0 +1,230 @@
+"""Batch runner: records, outputs, a crashing episode, resume after a kill, Ray = local."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from simn_sim.env.episodes import EpisodeSet, EpisodeSpec
+from simn_sim.experiments.batch import (
+    BatchConfig,
+    BatchError,
+    batch_main,
+    read_records_lenient,
+    regression_episode_file,
+    run_batch,
+)
+from simn_sim.experiments.runner import RECORD_FIELDS
+from simn_sim.experiments.stats import load_records
+
+SMALL = {"width": 160, "height": 120}
+#: Outcome fields that must agree exactly between two runs of the same episodes.
+OUTCOME = (
+    "episode_id",
+    "layout_seed",
+    "seed",
+    "agent",
+    "env_id",
+    "config_hash",
+    "success",
+    "spl",
+    "soft_spl",
+    "path_length_m",
+    "geodesic_distance_m",
+    "collisions",
+    "collisions_with_people",
+    "min_clearance_m",
+    "steps",
+    "termination",
+    "sim_time_s",
+    "error",
+)
+
+
+def _inside_obstacle() -> tuple[float, float]:
+    """A point inside furniture of the reference office (checked against the exact free space)."""
+    from simn_sim.env.office import load_layout
+    from simn_sim.env.scene import ROBOT_RADIUS, ROBOT_Z_BAND
+    from simn_sim.geometry.freespace import FreeSpace2D
+
+    lay = load_layout(None)
+    polys = lay.footprints(ROBOT_Z_BAND)
+    big = max(polys, key=lambda p: np.ptp(p[:, 0]) * np.ptp(p[:, 1]))
+    xy = big.mean(axis=0)
+    fs = FreeSpace2D(polys, robot_radius=ROBOT_RADIUS, bounds=lay.bounds)
+    assert not fs.is_free(xy[None])[0]
+    return float(xy[0]), float(xy[1])
+
+
+def _episode_file(tmp: Path) -> Path:
+    """Two short regression episodes (two layouts) and one starting inside an obstacle."""
+    reg = {e.episode_id: e for e in EpisodeSet.load(regression_episode_file()).episodes}
+    good = [reg["reg-ref-000"], reg["reg-L2-000"]]
+    x, y = _inside_obstacle()
+    bad = EpisodeSpec("bad-start", None, (x, y, 0.0), good[0].goal, seed=7)
+    f = tmp / "eps.json"
+    EpisodeSet("SimnOffice-v0", [good[0], bad, good[1]]).save(f)
+    return f
+
+
+def _lines(path: Path) -> list[str]:
+    return [ln for ln in path.read_text().splitlines() if ln.strip()]
+
+
+def test_local_batch_error_record_outputs_and_resume(tmp_path: Path) -> None:
+    eps = _episode_file(tmp_path)
+    out = tmp_path / "run"
+    cfg = BatchConfig(
+        out=out, agent="oracle", episode_file=eps, workers=2, env_config=SMALL, progress=False
+    )
+    res = run_batch(cfg)
+    assert len(res.records) == 3 and res.n_errors == 1
+    recs = {r["episode_id"]: r for r in load_records(out / "episodes.jsonl")}
+    assert set(recs) == {"reg-ref-000", "reg-L2-000", "bad-start"}
+    for r in recs.values():
+        assert set(RECORD_FIELDS) <= set(r)
+        assert r["agent"] == "oracle" and r["env_id"] == "SimnOffice-v0"
+        assert r["config_hash"] == res.config_hash
+    bad = recs["bad-start"]
+    assert bad["termination"] == "error" and "not in free space" in bad["error"]
+    assert "Traceback" in bad["error"] and bad["success"] is None
+    for eid in ("reg-ref-000", "reg-L2-000"):
+        r = recs[eid]
+        assert r["error"] is None and r["success"] is True and 0.5 < r["spl"] <= 1.0
+        xy = np.load(out / "trajectories" / "oracle" / f"{eid}.npy")
+        assert xy.shape == (r["steps"] + 1, 2) and xy.dtype == np.float32
+        spec = next(e for e in EpisodeSet.load(eps).episodes if e.episode_id == eid)
+        np.testing.assert_allclose(xy[0], spec.start[:2], atol=1e-4)
+        np.testing.assert_allclose(xy[-1], spec.goal, atol=0.37)  # within success_distance
+        path_len = float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=1)))
+        assert path_len == pytest.approx(r["path_length_m"], rel=0.02, abs=0.02)
+    # per-worker figures: two spawned processes (not this one), each with a plausible RSS
+    import os
+
+    assert {w["pid"] for w in res.workers} and os.getpid() not in {w["pid"] for w in res.workers}
+    assert all(50 < w["peak_rss_mb"] < 8000 for w in res.workers)
+    # reports
+    conf = json.loads((out / "config.json").read_text())
+    assert conf["env"]["width"] == 160 and conf["agent"] == "oracle"
+    assert conf["config_hash"] == res.config_hash and conf["package_version"]
+    assert "git_commit" in conf
+    md = (out / "summary.md").read_text()
+    assert "| oracle | 3 | 1 |" in md and "bad-start" in md
+    csv = (out / "summary.csv").read_text().splitlines()
+    assert csv[0].startswith("agent,metric,n,mean") and any(",success,3,0.666" in c for c in csv)
+    for png in ("success_spl.png", "trajectories_ref.png", "trajectories_L2.png"):
+        assert (out / png).stat().st_size > 5000
+    set_ids = [e.episode_id for e in EpisodeSet.load(out / "episode_set.json").episodes]
+    assert sorted(set_ids) == sorted(recs)
+
+    # resume: finished episodes are skipped, the errored one runs again (and errors again)
+    before = {json.loads(ln)["episode_id"]: ln for ln in _lines(out / "episodes.jsonl")}
+    cfg.workers = 0
+    res2 = run_batch(cfg)
+    assert sorted(res2.skipped) == ["reg-L2-000", "reg-ref-000"]
+    assert [r["episode_id"] for r in res2.records] == ["bad-start"]
+    after = _lines(out / "episodes.jsonl")
+    assert len(after) == 3
+    for ln in after:  # finished records kept byte for byte, nothing duplicated
+        eid = json.loads(ln)["episode_id"]
+        if eid != "bad-start":
+            assert ln == before[eid]
+    load_records(out / "episodes.jsonl")  # raises on a duplicate (episode_id, agent)
+
+    # a batch killed mid-write: one record lost, a half-written last line
+    kept = [ln for ln in after if json.loads(ln)["episode_id"] != "reg-L2-000"]
+    (out / "episodes.jsonl").write_text("\n".join(kept) + "\n" + before["reg-L2-000"][:57])
+    res3 = run_batch(cfg)
+    assert sorted(r["episode_id"] for r in res3.records) == ["bad-start", "reg-L2-000"]
+    final = load_records(out / "episodes.jsonl")
+    assert sorted(r["episode_id"] for r in final) == ["bad-start", "reg-L2-000", "reg-ref-000"]
+    again = next(r for r in final if r["episode_id"] == "reg-L2-000")
+    old = json.loads(before["reg-L2-000"])
+    assert {k: again[k] for k in OUTCOME} == {k: old[k] for k in OUTCOME}  # deterministic
+
+    # the same agent with another config into the same folder is refused
+    with pytest.raises(BatchError, match="config hash"):
+        run_batch(
+            BatchConfig(
+                out=out,
+                agent="oracle",
+                episode_file=eps,
+                workers=0,
+                env_config=SMALL,
+                agent_config={"margin": 0.2},
+                progress=False,
+            )
+        )
+
+
+def test_cli_sampled_episodes_with_rerun(tmp_path: Path) -> None:
+    cfg_yaml = tmp_path / "env.yaml"
+    cfg_yaml.write_text("width: 160\nheight: 120\nmin_geodesic: 2.0\nmax_geodesic: 4.0\n")
+    out = tmp_path / "run"
+    argv = ["--agent", "oracle", "--episodes", "2", "--seed", "5", "--workers", "0"]
+    argv += ["--out", str(out), "--config", str(cfg_yaml), "--rerun", "--no-plots"]
+    assert batch_main(argv) == 0
+    recs = load_records(out / "episodes.jsonl")
+    assert [r["episode_id"] for r in recs] == ["seed-5", "seed-6"]
+    assert [r["seed"] for r in recs] == [5, 6]
+    assert all(2.0 <= r["geodesic_distance_m"] <= 4.0 for r in recs)
+    specs = EpisodeSet.load(out / "episode_set.json").episodes
+    assert [e.episode_id for e in specs] == ["seed-5", "seed-6"]
+    for r in recs:
+        assert (out / "rrd" / "oracle" / f"{r['episode_id']}.rrd").stat().st_size > 10_000
+    conf = json.loads((out / "config.json").read_text())
+    assert conf["cli_args"] == argv and conf["env"]["max_geodesic"] == 4.0
+    # the same command again: nothing to do, exit 0, the file unchanged
+    before = (out / "episodes.jsonl").read_text()
+    assert batch_main(argv) == 0
+    assert (out / "episodes.jsonl").read_text() == before
+
+
+@pytest.mark.parametrize(
+    "argv, msg",
+    [
+        (["--agent", "oracle", "--episodes", "2", "--episode-file", "x.json"], "not allowed"),
+        (["--agent", "nobody", "--episodes", "1"], "unknown agent"),
+        (["--agent", "oracle", "--episodes", "1", "--env", "Nope-v0"], "unknown env id"),
+        (["--agent", "oracle", "--episode-file", "missing.json"], "does not exist"),
+        (["--agent", "oracle", "--episodes", "0"], "must be >= 1"),
+    ],
+)
+def test_cli_bad_input_exit_2(
+    argv: list[str], msg: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    assert batch_main([*argv, "--out", str(tmp_path / "o")]) == 2
+    assert msg in capsys.readouterr().err
+
+
+def test_lenient_reader_rejects_corruption_in_the_middle(tmp_path: Path) -> None:
+    p = tmp_path / "episodes.jsonl"
+    good = json.dumps({"episode_id": "a", "agent": "oracle"})
+    p.write_text(good + "\n{broken\n" + good.replace('"a"', '"b"') + "\n")
+    with pytest.raises(BatchError, match=":2: corrupt record"):
+        read_records_lenient(p)
+    p.write_text(good + "\n{broken")
+    recs, dropped = read_records_lenient(p)
+    assert dropped and [r["episode_id"] for r in recs] == ["a"]
+
+
+def _outcomes(recs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    return {r["episode_id"]: {k: r[k] for k in OUTCOME if k != "config_hash"} for r in recs}
+
+
+def test_ray_backend_gives_the_same_records_as_local(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    eps = tmp_path / "eps.json"
+    allr = EpisodeSet.load(regression_episode_file()).episodes
+    EpisodeSet("SimnOffice-v0", [allr[0], allr[4]]).save(eps)
+    common = dict(agent="oracle", episode_file=eps, env_config=SMALL, progress=False, plots=False)
+    local = run_batch(BatchConfig(out=tmp_path / "local", workers=1, **common))
+    ray_ = run_batch(BatchConfig(out=tmp_path / "ray", workers=2, backend="ray", **common))
+    assert ray_.backend_info["ray_resources"]["CPU"] == 2.0
+    assert len(ray_.records) == 2 and ray_.n_errors == 0
+    assert _outcomes(ray_.records) == _outcomes(local.records)
+    assert ray_.config_hash == local.config_hash
