@@ -1,0 +1,154 @@
+"""Typed config of the SIMN front-end (:class:`~simn_sim.slam.pipeline.SimnSlam`).
+
+One frozen dataclass holding the per-component configs it composes (mapper, registration,
+local-frame trigger, loop closure, pose graph, floor classifier) plus the pipeline's own knobs.
+``SlamConfig.for_agent()`` is the cheap preset for closed-loop navigation (10 Hz, 320x240).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from simn_sim.config import Config, ConfigError, require
+from simn_sim.mapping.config import MapperConfig, TrainingConfig
+from simn_sim.semantics import FloorClassifierConfig
+from simn_sim.tracking.localframes import FrameTriggerConfig
+from simn_sim.tracking.posegraph import PoseGraphConfig
+from simn_sim.tracking.registration import RegistrationConfig
+from simn_sim.tracking.topomap import LoopClosureConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class SlamConfig(Config):
+    """Settings of :class:`~simn_sim.slam.pipeline.SimnSlam` (lengths in metres).
+
+    Perception: every ``pixel_stride``-th pixel (0: automatic, about 160 columns) in
+    ``[min_depth, max_depth]``; registration points on a ``track_voxel`` grid, at most
+    ``max_track_points`` (random subset, explicit RNG seeded with ``seed``); the mapper
+    down-samples its own input at ``mapper.integrate_voxel_size`` (3 cm).
+    """
+
+    pixel_stride: int = 0
+    min_depth: float = 0.28
+    max_depth: float = 6.0
+    track_voxel: float = 0.06
+    max_track_points: int = 4000
+    # mapping: the first observation of a frame trains ``open_train_iters`` (so the next frame
+    # can register against it); afterwards every ``train_every``-th frame ``train_iters``.
+    train_every: int = 5
+    open_train_iters: int = 150
+    train_iters: int = 40
+    share_decoder: bool = False  # False: a new frame's decoder starts as a copy (no forgetting)
+    # per-frame map: "implicit" = the learned ImplicitMap (the paper); "points" = no learning
+    # (a surface voxel store with normals; the cheap path).
+    map_kind: Literal["implicit", "points"] = "implicit"
+    # tracking: which SDF a frame is registered against.
+    #   "implicit": the local frame's learned map (the paper's method; needs map_kind implicit);
+    #   "points": point-to-plane SDF of the local frame's surface store (surface_voxel grid,
+    #   first observation per voxel kept, normals from the organised depth image).
+    track_sdf: Literal["implicit", "points"] = "points"
+    surface_voxel: float = 0.02
+    sdf_rebuild_growth: float = 0.1  # rebuild the point SDF when the store grew by this share
+    max_correction_m: float = 0.3  # a registration moving the prior further is rejected
+    max_correction_deg: float = 20.0
+    # odometry arcs between consecutive anchors: sigma = base + per-unit growth
+    odom_sigma_rot: float = 0.005  # rad
+    odom_sigma_rot_per_rad: float = 0.02
+    odom_sigma_trans: float = 0.005  # m
+    odom_sigma_trans_per_m: float = 0.02
+    revisits: bool = True
+    # obstacle / floor point stores (per local frame, anchor coordinates)
+    obstacle_voxel: float = 0.05
+    floor_voxel: float = 0.10
+    carve: bool = True  # remove stored obstacle points the current depth sees through
+    carve_margin: float = 0.10  # seen-through depth must exceed the point's by this
+    carve_frames: int = 2  # carve the current and the previous (n - 1) local frames
+    semantics: bool = True
+    seed: int = 0
+    mapper: MapperConfig = dataclasses.field(default_factory=MapperConfig)
+    registration: RegistrationConfig = dataclasses.field(default_factory=RegistrationConfig)
+    trigger: FrameTriggerConfig = dataclasses.field(default_factory=FrameTriggerConfig)
+    loop: LoopClosureConfig = dataclasses.field(default_factory=LoopClosureConfig)
+    pose_graph: PoseGraphConfig = dataclasses.field(default_factory=PoseGraphConfig)
+    classifier: FloorClassifierConfig = dataclasses.field(default_factory=FloorClassifierConfig)
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.pixel_stride >= 0, n, "pixel_stride", "must be >= 0 (0: automatic)")
+        require(
+            math.isfinite(self.max_depth) and 0 <= self.min_depth < self.max_depth,
+            n,
+            "max_depth",
+            "need 0 <= min_depth < max_depth",
+        )
+        require(
+            not (self.track_sdf == "implicit" and self.map_kind == "points"),
+            n,
+            "track_sdf",
+            "'implicit' tracking needs map_kind 'implicit'",
+        )
+        require(self.sdf_rebuild_growth >= 0, n, "sdf_rebuild_growth", "must be >= 0")
+        for f in ("track_voxel", "obstacle_voxel", "floor_voxel", "carve_margin", "surface_voxel"):
+            v = getattr(self, f)
+            require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
+        require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")
+        require(self.train_every >= 1, n, "train_every", "must be >= 1")
+        require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
+        require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
+        require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
+        require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
+        for f in (
+            "odom_sigma_rot",
+            "odom_sigma_trans",
+            "odom_sigma_rot_per_rad",
+            "odom_sigma_trans_per_m",
+        ):
+            require(getattr(self, f) >= 0, n, f, "must be >= 0")
+        require(self.odom_sigma_rot > 0 and self.odom_sigma_trans > 0, n, "odom_sigma_rot", "> 0")
+        require(self.carve_frames >= 1, n, "carve_frames", "must be >= 1")
+
+    @classmethod
+    def for_agent(cls, **changes: Any) -> SlamConfig:
+        """The cheap preset for the closed-loop agent (10 Hz, 320x240 frames): fewer
+        registration points and shorter training bursts."""
+        base = cls()
+        tr = dataclasses.replace(base.mapper.training, batch_size=2048)
+        d = base.to_dict()
+        d.update(
+            max_track_points=2500,
+            map_kind="points",
+            open_train_iters=60,
+            train_iters=15,
+            train_every=5,
+            mapper={**d["mapper"], "training": tr.to_dict()},
+        )
+        d.update(changes)
+        return cls.from_dict(d)
+
+
+def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
+    """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"config file {p} does not exist")
+        try:
+            loaded = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as e:
+            raise ConfigError(f"{p}: not valid YAML ({e})") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{p}: expected a mapping at the top level")
+        data = loaded
+    data.update(overrides)
+    return SlamConfig.from_dict(data)
+
+
+__all__ = ["SlamConfig", "TrainingConfig", "load_slam_config"]

@@ -1,0 +1,116 @@
+"""SimnSlam on a short simulated sequence (recorded into a tmp dir at 160x120)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from simn_sim.eval.trajectory import ate_rpe  # noqa: E402
+from simn_sim.io.tum import read_tum  # noqa: E402
+from simn_sim.semantics import OBSTACLE  # noqa: E402
+from simn_sim.slam import SimnSlam, SlamConfig  # noqa: E402
+from simn_sim.slam.record import read_base, record_sequence  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def desk(tmp_path_factory):
+    out = tmp_path_factory.mktemp("slam") / "desk"
+    record_sequence(out, "desk", width=160, height=120, frames=30)
+    return out
+
+
+def _run(folder, cfg, n=None):
+    seq = read_tum(folder)
+    slam = SimnSlam(cfg, seq.intrinsics, read_base(folder))
+    outs, gt = [], []
+    for k, fr in enumerate(seq):
+        if n is not None and k >= n:
+            break
+        outs.append(slam.process(fr.timestamp, fr.rgb, fr.depth))
+        gt.append((fr.timestamp, fr.T_world_cam))
+    return slam, outs, gt
+
+
+def test_desk_ate_points_map(desk):
+    # Target (DESIGN/issue): ATE <= 1 cm noise-free. Exact depth and a point-to-plane model
+    # of the local frame give ~1-2 mm here (docs/slam.md); 1 cm leaves room for CPU/RNG noise
+    # but not for a broken tracker (constant velocity alone drifts > 3 cm over this sequence).
+    slam, outs, gt = _run(desk, SlamConfig(map_kind="points"))
+    assert all(o.success for o in outs[1:]), [o.reason for o in outs if not o.success]
+    m = ate_rpe(slam.trajectory(), gt)
+    assert m["ate_rmse_m"] < 0.01, m
+    # obstacles near the robot: within the depth range of the camera path
+    obst = slam.obstacle_points_world()
+    assert len(obst) > 50
+    cam = np.array([T[:3, 3] for _, T in slam.trajectory()])
+    d = np.linalg.norm(obst[:, None, :2] - cam[None, :, :2], axis=2).min(axis=1)
+    # depth is along the optical axis: the range at the image corner is ~1.2x larger
+    assert d.max() < 1.25 * slam.cfg.max_depth
+    assert (outs[-1].labels == OBSTACLE).sum() == len(outs[-1].obstacle_points_world)
+
+
+def test_local_frames_open_and_arcs(desk):
+    cfg = SlamConfig(map_kind="points", trigger={"max_travel_m": 0.15, "max_rotation_deg": 10.0})
+    slam, outs, _ = _run(desk, cfg)
+    assert slam.stats()["local_frames"] >= 3
+    assert outs[0].new_local_frame
+    assert sum(o.new_local_frame for o in outs) == slam.stats()["local_frames"]
+    ids = [o.frame_id for o in outs]
+    assert ids == sorted(ids)
+    arcs = slam.topo.arcs("odom")
+    assert len(arcs) == slam.stats()["local_frames"] - 1
+    # an anchor is the camera pose at the frame's first observation
+    first = {o.frame_id: o for o in reversed(outs)}
+    for fid, o in first.items():
+        np.testing.assert_allclose(slam.topo.anchor(fid), o.T_world_cam, atol=1e-9)
+
+
+def test_lost_track_falls_back_to_prior(desk):
+    seq = read_tum(desk)
+    slam = SimnSlam(SlamConfig(map_kind="points"), seq.intrinsics, read_base(desk))
+    f0, f1, f2 = seq[0], seq[1], seq[2]
+    slam.process(f0.timestamp, f0.rgb, f0.depth)
+    slam.process(f1.timestamp, f1.rgb, f1.depth)
+    blank = np.zeros_like(f2.depth)
+    out = slam.process(f2.timestamp, f2.rgb, blank)  # nothing valid: no exception
+    assert not out.success and "points" in out.reason
+    np.testing.assert_allclose(out.T_world_cam, out.prior)
+    # garbage depth (random) must not raise either
+    rng = np.random.default_rng(0)
+    f3 = seq[3]
+    junk = rng.uniform(0.3, 5.0, f3.depth.shape).astype(np.float32)
+    out = slam.process(f3.timestamp, f3.rgb, junk)
+    assert isinstance(out.success, bool)
+    with pytest.raises(ValueError):
+        slam.process(f3.timestamp, f3.rgb, f3.depth)  # timestamps must increase
+
+
+def test_external_prior_defines_world_and_increments(desk):
+    seq = read_tum(desk)
+    slam = SimnSlam(SlamConfig(map_kind="points"), seq.intrinsics, read_base(desk))
+    offset = np.eye(4)
+    offset[:3, 3] = [5.0, -2.0, 0.0]
+    est, gt = [], []
+    for k in range(10):
+        fr = seq[k]
+        prior = offset @ fr.T_world_cam
+        prior[:3, 3] += 0.01 * k  # a drifting prior: only its increments are used
+        out = slam.process(fr.timestamp, fr.rgb, fr.depth, prior)
+        est.append(out.T_world_cam)
+        gt.append(offset @ fr.T_world_cam)
+    np.testing.assert_allclose(est[0], gt[0], atol=1e-9)
+    err = max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, gt, strict=True))
+    assert err < 0.01  # registration removed the 1 cm/frame prior drift
+
+
+def test_implicit_map_path_runs(desk):
+    cfg = SlamConfig(map_kind="implicit", track_sdf="implicit", open_train_iters=20, train_iters=5)
+    slam, outs, _ = _run(desk, cfg, n=4)
+    fp = slam.topo.frame(0).map.feature_points()
+    assert len(fp.positions) > 100
+    assert outs[1].tracked_against == 0
+    assert all(np.isfinite(o.T_world_cam).all() for o in outs)
