@@ -151,6 +151,9 @@ def run_episode(
         agent_state = getattr(agent, "state", None)
         if callable(agent_state):
             rec["agent_state"] = agent_state()
+        counters = getattr(agent, "counters", None)
+        if callable(counters):
+            rec.update(counters())
     except Exception as e:  # noqa: BLE001 - a failing episode is recorded, never fatal
         rec["error"] = f"{type(e).__name__}: {e}\n{traceback.format_exc()}"
         rec["termination"] = "error"

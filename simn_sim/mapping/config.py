@@ -148,9 +148,9 @@ class TrainingConfig(Config):
     batch_size: int = 4096
     eikonal_fraction: float = 0.5  # share of each batch that also gets the Eikonal term
     train_every: int = 5  # train on every k-th integrated frame
-    max_iters: int = 50
+    max_iters: int = 20
     min_iters: int = 10
-    loss_window: int = 10
+    loss_window: int = 5
     loss_threshold: float = 1e-4  # stop when |mean(last window) - mean(previous)| < this
     replay_capacity: int = 200_000
     replay_ratio: float = 0.5  # share of replayed (old) samples in a batch once the pool has any
@@ -160,7 +160,7 @@ class TrainingConfig(Config):
     # Divide each consolidated Fisher by its mean, so ewc_weight is a stiffness relative to
     # the average parameter importance rather than tied to the loss scale.
     ewc_normalize: bool = True
-    max_pending: int = 60_000  # samples kept between training calls (uniform subset)
+    max_pending: int = 20_000  # samples kept between training calls (uniform subset)
 
     def validate(self) -> None:
         n = type(self).__name__

@@ -90,6 +90,7 @@ class NeuralPointMap:
         bkeys = pack_keys(cell)
         sorted_b, perm = torch.sort(bkeys, stable=True)
         self._bperm = perm
+        self._bpos = self.positions[perm].contiguous()
         self._bkeys, counts = torch.unique_consecutive(sorted_b, return_counts=True)
         self._bcount = counts
         self._bstart = torch.cumsum(counts, 0) - counts
@@ -186,7 +187,7 @@ class NeuralPointMap:
 
     def nbytes(self) -> int:
         ts = [self.positions, self.features, self.colors, self.labels, self._vkeys, self._vorder]
-        ts += [self._bperm, self._bkeys, self._bcount, self._bstart]
+        ts += [self._bperm, self._bpos, self._bkeys, self._bcount, self._bstart]
         return int(sum(t.numel() * t.element_size() for t in ts))
 
     # ------------------------------------------------------------------ search
@@ -203,42 +204,57 @@ class NeuralPointMap:
         d2_out = torch.full((q, k), float("inf"), device=self.device)
         if len(self) == 0 or q == 0:
             return idx_out, d2_out
+        x = x.to(self.device, torch.float32)
         step = self.cfg.query_chunk
+        budget = 64 * step  # candidate slots per chunk (bounds memory)
         for s in range(0, q, step):
-            i, d = self._knn_chunk(x[s : s + step].to(self.device, torch.float32))
-            idx_out[s : s + step], d2_out[s : s + step] = i, d
+            xs = x[s : s + step]
+            start, cnt = self._buckets(xs)
+            total = cnt.sum(1)
+            live = torch.nonzero(total > 0).squeeze(1)
+            if live.numel() == 0:
+                continue
+            # group queries with similar candidate counts so the padded matrix stays tight
+            order = live[torch.argsort(total[live])]
+            tot = total[order]
+            i0 = 0
+            while i0 < order.numel():
+                c_max = int(tot[min(i0 + step, order.numel()) - 1])
+                i1 = min(order.numel(), i0 + max(1, budget // max(c_max, 1)), i0 + step)
+                c = int(tot[i1 - 1])
+                sel = order[i0:i1]
+                i, d = self._knn_candidates(xs[sel], start[sel], cnt[sel], c)
+                idx_out[s + sel], d2_out[s + sel] = i, d
+                i0 = i1
         return idx_out, d2_out
 
-    def _knn_chunk(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        k, r = self.cfg.k_neighbors, self.cfg.search_radius
-        q = x.shape[0]
-        cell = torch.floor(x / r).long()
+    def _buckets(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Start (in bucket order) and size of the 27 buckets around each query, (Q, 27)."""
+        cell = torch.floor(x / self.cfg.search_radius).long()
         keys = pack_keys(cell[:, None, :] + self._off27[None]).contiguous()  # (Q, 27)
-        nb = self._bkeys.numel()
-        pos = torch.searchsorted(self._bkeys, keys).clamp(max=nb - 1)
+        pos = torch.searchsorted(self._bkeys, keys).clamp(max=self._bkeys.numel() - 1)
         found = self._bkeys[pos] == keys
         cnt = torch.where(found, self._bcount[pos], torch.zeros_like(pos))
-        start = self._bstart[pos]
+        return self._bstart[pos], cnt
+
+    def _knn_candidates(
+        self, x: torch.Tensor, start: torch.Tensor, cnt: torch.Tensor, c: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Top-k over the (Q, c) padded candidates of the 27 buckets of each query."""
+        k, r = self.cfg.k_neighbors, self.cfg.search_radius
+        q = x.shape[0]
         cum = torch.cumsum(cnt, 1)
-        total = cum[:, -1]
-        c = int(total.max())
-        if c == 0:
-            return (
-                torch.full((q, k), -1, dtype=torch.long, device=self.device),
-                torch.full((q, k), float("inf"), device=self.device),
-            )
+        total = cum[:, -1:]
         j = torch.arange(c, device=self.device).expand(q, c).contiguous()
         b = torch.searchsorted(cum, j, right=True).clamp(max=26)  # bucket of each slot
-        before = (cum - cnt).gather(1, b)
-        slot = start.gather(1, b) + j - before
-        ok = j < total[:, None]
+        slot = (start - cum + cnt).gather(1, b) + j
+        ok = j < total
         slot = torch.where(ok, slot, torch.zeros_like(slot))
-        cand = self._bperm[slot]  # (Q, C) point ids
-        d2 = ((self.positions[cand] - x[:, None, :]) ** 2).sum(-1)
+        d2 = ((self._bpos[slot] - x[:, None, :]) ** 2).sum(-1)  # positions in bucket order
         d2 = torch.where(ok & (d2 <= r * r), d2, torch.full_like(d2, float("inf")))
         kk = min(k, c)
         d2k, arg = torch.topk(d2, kk, dim=1, largest=False)
-        idk = cand.gather(1, arg)
+        idk = self._bperm[slot.gather(1, arg)]
         idk = torch.where(torch.isfinite(d2k), idk, torch.full_like(idk, -1))
         if kk < k:
             pad = k - kk

@@ -1,0 +1,432 @@
+"""``simn`` and ``rrtstar`` agents: the SIMN pipeline in the closed loop.
+
+One control step (``act``), all in the agent's own frame (the episode's start frame, z up, the
+floor at z = 0; the goal and the odometry arrive in it):
+
+1. pose prior: the wheel-odometry increment applied to the previous estimate;
+2. ``pose_source="slam"``: :class:`~simn_sim.slam.pipeline.SimnSlam` registers the frame to the
+   current local frame's implicit map, trains it, opens local frames, grows the topological map
+   and closes loops; ``"odometry"``: the prior is used as is (ablation);
+3. semantics: the frame's points (pixel stride ``obstacle_stride``) are labelled floor /
+   obstacle with the geometric classifier (floor plane z = 0 known from the camera mount);
+4. collision model: obstacle points within the robot's height band go into the shared
+   :class:`~simn_sim.planning.collision.CollisionChecker` (unknown space is free);
+5. planning: topological guidance (a sub-goal on the route over the topological map when the goal
+   lies beyond the current local frame), then goal-vector RRT* (``simn``) or uniform RRT*
+   (``rrtstar``) on a replanning schedule, or when the follower reports the path blocked or stale;
+6. control: pure pursuit -> ``[v, w]`` within the env's action bounds.
+
+The agent never reads the true pose. A failed plan or a lost track does not end the episode:
+the agent reports its state (``state()``) and keeps acting (turning in place to look around when
+it has no plan).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any, Literal
+
+import numpy as np
+
+from simn_sim.agents.base import register_agent
+from simn_sim.config import Config, require
+from simn_sim.geometry.camera import Intrinsics, backproject
+from simn_sim.geometry.se3 import inv_T, planar_T, transform_points, yaw_of
+from simn_sim.planning import (
+    CollisionChecker,
+    CollisionConfig,
+    FollowerConfig,
+    GoalVectorConfig,
+    PathFollower,
+    RRTStarConfig,
+    goal_vector_rrt_star,
+    uniform_rrt_star,
+)
+from simn_sim.planning.gridpath import grid_shortest_path
+from simn_sim.semantics import FLOOR, OBSTACLE
+
+
+@dataclasses.dataclass(frozen=True)
+class SimnAgentConfig(Config):
+    planner: Literal["goal_vector", "uniform"] = "goal_vector"
+    pose_source: Literal["slam", "odometry"] = "slam"
+    obstacle_stride: int = 4  # pixel stride of the points that feed the collision model
+    obstacle_max_depth: float = 5.0  # farther points are noisier (D435i error grows with z^2)
+    floor_tolerance: float = 0.06  # |z| below this is floor
+    robot_height: float = 1.0  # points above this do not hit the base
+    collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
+    # iteration budget only (no wall-clock budget): the same seed gives the same plans
+    rrt: RRTStarConfig = RRTStarConfig(time_budget_ms=0.0, max_iterations=600)
+    goal_vector: GoalVectorConfig = GoalVectorConfig()
+    follower: FollowerConfig = FollowerConfig(
+        lookahead=0.5, v_max=0.8, goal_tolerance=0.15, slow_clearance=0.3, min_clearance_scale=0.5
+    )
+    switch_gain: float = (
+        0.9  # a scheduled replan replaces the path only if shorter than this x remaining
+    )
+    replan_every: int = 10  # control steps between scheduled replans
+    window: float = 6.0  # uniform RRT* samples the known map's box padded by this (m)
+    slam: dict[str, Any] | None = None  # SlamConfig values (pose_source="slam")
+    seed: int = 0
+
+    def validate(self) -> None:
+        n = "SimnAgentConfig"
+        require(self.obstacle_stride >= 1, n, "obstacle_stride", "must be >= 1")
+        require(self.obstacle_max_depth > 0.3, n, "obstacle_max_depth", "must be > 0.3 m")
+        require(self.floor_tolerance > 0, n, "floor_tolerance", "must be > 0")
+        require(
+            self.robot_height > self.floor_tolerance,
+            n,
+            "robot_height",
+            "must exceed floor_tolerance",
+        )
+        require(self.replan_every >= 1, n, "replan_every", "must be >= 1")
+        require(self.window > 0, n, "window", "must be > 0")
+        require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
+
+
+def strided(depth: np.ndarray, intr: Intrinsics, stride: int) -> tuple[np.ndarray, Intrinsics]:
+    """Every ``stride``-th pixel of ``depth`` and the intrinsics of that sub-image."""
+    if stride == 1:
+        return depth, intr
+    d = depth[::stride, ::stride]
+    return d, Intrinsics(
+        d.shape[1],
+        d.shape[0],
+        intr.fx / stride,
+        intr.fy / stride,
+        intr.cx / stride,
+        intr.cy / stride,
+    )
+
+
+def label_points_world(
+    points_world: np.ndarray, floor_tol: float, robot_height: float
+) -> np.ndarray:
+    """Floor (|z| < floor_tol) / obstacle (floor_tol <= z <= robot_height) / unknown labels for
+    (N, 3) points in a frame whose floor is z = 0 (the camera mount gives it)."""
+    z = points_world[:, 2]
+    lab = np.zeros(len(z), np.int8)
+    lab[np.abs(z) < floor_tol] = FLOOR
+    lab[(z >= floor_tol) & (z <= robot_height)] = OBSTACLE
+    return lab
+
+
+class SimnAgent:
+    """The SIMN navigation agent (``planner="goal_vector"``) and its RRT* baseline
+    (``planner="uniform"``); see the module docstring."""
+
+    def __init__(
+        self, env: Any, config: dict[str, Any] | SimnAgentConfig | None = None, name: str = "simn"
+    ):
+        self.cfg = (
+            config if isinstance(config, SimnAgentConfig) else SimnAgentConfig.from_dict(config)
+        )
+        self.name = name
+        lo, hi = env.action_space.low, env.action_space.high
+        f = self.cfg.follower
+        self.follower_cfg = f.replace(
+            v_min=max(f.v_min, float(lo[0])),
+            v_max=min(f.v_max, float(hi[0])),
+            w_min=max(f.w_min, float(lo[1])),
+            w_max=min(f.w_max, float(hi[1])),
+        )
+        self.control_dt = float(getattr(env, "dt", 0.1))
+
+    def config_dict(self) -> dict[str, Any]:
+        return self.cfg.to_dict()
+
+    # ---- episode ---------------------------------------------------------------------------
+    def reset(self, obs: dict, info: dict) -> None:
+        cam = info["camera"]
+        self.intr: Intrinsics = cam.intrinsics
+        self.T_base_cam = np.asarray(cam.T_base_cam, float)
+        self.rng = np.random.default_rng(self.cfg.seed)
+        self.checker = CollisionChecker(self.cfg.collision)
+        self.follower = PathFollower(self.follower_cfg, self.checker)
+        self.goal = np.asarray(obs["goal"], float)
+        self.T_odom_prev = self._odom_T(obs)
+        self.T_base_est = self.T_odom_prev.copy()
+        self.path: np.ndarray | None = None
+        self.tree_edges: np.ndarray | None = None
+        self.steps = 0
+        self.since_plan = 0
+        self.plan_failures = 0
+        self.fallback_plans = 0
+        self.bumps = 0
+        self._last_cmd = np.zeros(2)
+        self._stuck_steps = 0
+        self._state = "starting"
+        self._plan_ms: float | None = None
+        self._map_ms: float | None = None
+        self._track_ms: float | None = None
+        self.slam = None
+        self._anchors_version = 0
+        if self.cfg.pose_source == "slam":
+            from simn_sim.slam.pipeline import SimnSlam, SlamConfig
+
+            self.slam = SimnSlam(
+                SlamConfig.from_dict(self.cfg.slam or {}), self.intr, T_base_cam=self.T_base_cam
+            )
+        self._perceive(obs, self.T_base_est @ self.T_base_cam)
+
+    @staticmethod
+    def _odom_T(obs: dict) -> np.ndarray:
+        o = np.asarray(obs["odometry"], float)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ValueError(f"odometry must be a finite (x, y, yaw), got {o}")
+        return planar_T(o[0], o[1], o[2])
+
+    # ---- perception + mapping ----------------------------------------------------------------
+    def _perceive(self, obs: dict, T_world_cam_prior: np.ndarray) -> np.ndarray:
+        """Pose estimate, map update and collision-model update; returns T_world_cam."""
+        t0 = time.perf_counter()
+        T_wc = T_world_cam_prior
+        self._map_ms = self._track_ms = None
+        if self.slam is not None:
+            fr = self.slam.process(
+                self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior
+            )
+            T_wc = fr.T_world_cam
+            self._track_ms, self._map_ms = fr.track_ms, fr.map_ms
+            self._track_ok = bool(fr.tracking_success)
+            if self.slam.anchors_version != self._anchors_version:
+                # the pose graph moved local-frame anchors: rebuild the collision model from the maps
+                self._anchors_version = self.slam.anchors_version
+                self.checker.reset()
+                pts = self.slam.obstacle_points_world()
+                if len(pts):
+                    self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+        d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
+        P = backproject(np.where(d <= self.cfg.obstacle_max_depth, d, 0.0), intr).reshape(-1, 3)
+        P = P[P[:, 2] > 0]
+        if len(P):
+            Pw = transform_points(T_wc, P.astype(np.float64))
+            lab = label_points_world(Pw, self.cfg.floor_tolerance, self.cfg.robot_height)
+            self.checker.update(Pw, lab)
+        if self.slam is None:
+            self._map_ms = (time.perf_counter() - t0) * 1e3
+        return T_wc
+
+    # ---- planning ----------------------------------------------------------------------------
+    def _subgoal(self, xy: np.ndarray) -> np.ndarray:
+        """Topological guidance: the next local frame on the route when the goal lies beyond
+        the current frame and the map knows frames near it; else the goal itself."""
+        if self.slam is None or self.slam.topo is None or self.slam.current_frame_id is None:
+            return self.goal
+        try:
+            from simn_sim.planning.topo import route_subgoal
+
+            r = route_subgoal(self.slam.topo.graph, self.slam.current_frame_id, self.goal)
+            return np.asarray(r.xy, float)
+        except (KeyError, ValueError, AttributeError):
+            return self.goal
+
+    def _plan(self, xy: np.ndarray, scheduled: bool = False) -> None:
+        """Plan from ``xy`` to the (sub-)goal. A scheduled replan keeps the current path unless
+        the new one is shorter than ``switch_gain`` x the remaining length (no dithering between
+        equivalent RRT* solutions); an event replan (blocked, stale, no path) always replaces it."""
+        t = time.perf_counter()
+        goal = self._subgoal(xy)
+        if not self.checker.is_free(goal[None])[0]:
+            alt = self._nearest_free(goal)
+            goal = alt if alt is not None else goal
+        start = xy
+        if not self.checker.is_free(xy[None])[
+            0
+        ]:  # inside the margin: start from the nearest free point
+            alt = self._nearest_free(xy, radius=0.5)
+            start = alt if alt is not None else xy
+        path = None
+        self.tree_edges = None
+        if self.checker.is_free(start[None])[0] and self.checker.is_free(goal[None])[0]:
+            if self.cfg.planner == "goal_vector":
+                planner = goal_vector_rrt_star(
+                    self.checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng
+                )
+            else:
+                lo = np.minimum(xy, goal) - self.cfg.window
+                hi = np.maximum(xy, goal) + self.cfg.window
+                b = self.checker.obstacle_bounds()
+                if b is not None:
+                    lo = np.minimum(lo, [b[0], b[1]])
+                    hi = np.maximum(hi, [b[2], b[3]])
+                planner = uniform_rrt_star(
+                    self.checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng
+                )
+            path = planner.plan(start, goal)
+            if path is None:  # RRT* budget exhausted: complete grid search on the same checker
+                path = grid_shortest_path(self.checker, start, goal, self.rng)
+                self.fallback_plans += int(path is not None)
+            if path is not None and start is not xy:
+                path = np.vstack([xy, path])
+            tree = planner.tree
+            if tree is not None and len(tree) > 1:
+                par = np.asarray(tree.parent[: len(tree)])
+                ok = par >= 0
+                xy_t = np.asarray(tree.xy[: len(tree)])
+                self.tree_edges = np.stack([xy_t[ok], xy_t[par[ok]]], axis=1)
+        self._plan_ms = (time.perf_counter() - t) * 1e3
+        self.since_plan = 0
+        if scheduled and self.path is not None:
+            if path is None or _length(path) >= self.cfg.switch_gain * self._remaining(xy):
+                return
+        if path is None:
+            self.plan_failures += 1
+            self.path = None
+            self._state = "no_plan"
+        else:
+            self.path = path
+            self.follower.set_path(path)
+            self._state = "following"
+
+    def _remaining(self, xy: np.ndarray) -> float:
+        """Length of the current path from the robot's nearest vertex on."""
+        p = self.path
+        k = int(np.argmin(np.hypot(*(p - xy).T)))
+        return float(np.hypot(*(p[k] - xy))) + _length(p[k:])
+
+    def _nearest_free(self, p: np.ndarray, radius: float = 1.0) -> np.ndarray | None:
+        ang = np.linspace(0, 2 * math.pi, 24, endpoint=False)
+        for r in np.arange(0.1, radius + 1e-9, 0.1):
+            cand = p + r * np.c_[np.cos(ang), np.sin(ang)]
+            free = self.checker.is_free(cand)
+            if free.any():
+                return cand[np.flatnonzero(free)[0]]
+        return None
+
+    def _detect_bump(self, T_step: np.ndarray) -> None:
+        """Wheel odometry shows no motion although the base was commanded forwards: an
+        obstacle the camera cannot see (below the view, within its ~0.6 m blind zone) blocks
+        it. Add it to the collision model as an arc of points just ahead of the hull."""
+        v_cmd = float(self._last_cmd[0])
+        moved = float(np.hypot(T_step[0, 3], T_step[1, 3]))
+        if v_cmd > 0.1 and moved < 0.2 * v_cmd * self.control_dt:
+            self._stuck_steps += 1
+        else:
+            self._stuck_steps = 0
+        if self._stuck_steps >= 2:
+            self.bumps += 1
+            self._stuck_steps = 0
+            T = self.T_base_est
+            a = np.radians(np.linspace(-40, 40, 9))
+            r = self.cfg.collision.robot_radius + 0.03
+            local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
+            pts = transform_points(T, local)
+            self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+            self.path = None
+
+    def _drive_to(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Turn towards ``target`` and creep to it (forwards, or backwards when it is behind)."""
+        d = target - pose[:2]
+        err = (math.atan2(d[1], d[0]) - pose[2] + math.pi) % (2 * math.pi) - math.pi
+        if abs(err) > math.radians(120) and self.follower_cfg.v_min < 0:  # behind: reverse
+            err_b = (err + 2 * math.pi) % (2 * math.pi) - math.pi - math.copysign(math.pi, err)
+            return np.array(
+                [max(self.follower_cfg.v_min, -0.15), float(np.clip(1.5 * err_b, -1.0, 1.0))],
+                np.float32,
+            )
+        if abs(err) > math.radians(45):
+            return np.array([0.0, math.copysign(0.8, err)], np.float32)
+        return np.array([0.15, float(np.clip(1.5 * err, -1.0, 1.0))], np.float32)
+
+    def _escape(self, pose: np.ndarray) -> np.ndarray:
+        """Inside the inflated obstacles: drive towards the freest nearby direction."""
+        xy, yaw = pose[:2], pose[2]
+        ang = yaw + np.linspace(-math.pi, math.pi, 16, endpoint=False)
+        cand = xy + 0.3 * np.c_[np.cos(ang), np.sin(ang)]
+        best = ang[int(np.argmax(self.checker.clearance(cand)))]
+        err = (best - yaw + math.pi) % (2 * math.pi) - math.pi
+        if abs(err) > math.radians(60):
+            return np.array([0.0, math.copysign(self.follower_cfg.w_max * 0.6, err)], np.float32)
+        return np.array([0.15, 1.5 * err], np.float32)
+
+    # ---- act ---------------------------------------------------------------------------------
+    def act(self, obs: dict, info: dict | None = None) -> np.ndarray:  # info ignored: no true pose
+        a = self._act(obs)
+        self._last_cmd = np.asarray(a, float)
+        return a
+
+    def _act(self, obs: dict) -> np.ndarray:
+        self.steps += 1
+        T_odom = self._odom_T(obs)
+        self._detect_bump(inv_T(self.T_odom_prev) @ T_odom)
+        T_base_prior = self.T_base_est @ inv_T(self.T_odom_prev) @ T_odom
+        self.T_odom_prev = T_odom
+        T_wc = self._perceive(obs, T_base_prior @ self.T_base_cam)
+        self.T_base_est = T_wc @ inv_T(self.T_base_cam)
+        pose = np.array([self.T_base_est[0, 3], self.T_base_est[1, 3], yaw_of(self.T_base_est)])
+        xy = pose[:2]
+        self._plan_ms = None
+        if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.02:
+            self._state = "escaping"  # (nearly) touching a mapped obstacle
+            self.path = None
+            return self._escape(pose)
+        if not self.checker.is_free(xy[None])[0]:
+            # inside the safety margin (the map grew around the robot): back out to the nearest
+            # free point before planning again
+            self._state = "recovering"
+            self.path = None
+            target = self._nearest_free(xy, radius=0.6)
+            return self._escape(pose) if target is None else self._drive_to(pose, target)
+        self.since_plan += 1
+        if self.path is None:
+            self._plan(xy)
+        elif self.since_plan >= self.cfg.replan_every:
+            self._plan(xy, scheduled=True)
+        if self.path is None:  # look around: turning reveals more of the map
+            return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
+        cmd = self.follower.step(pose)
+        if cmd.status in ("blocked", "stale"):
+            self._plan(xy)
+            if self.path is None:
+                return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
+            cmd = self.follower.step(pose)
+        if cmd.status == "reached" and float(np.hypot(*(self.goal - xy))) > 0.2:
+            self._plan(xy)  # reached a sub-goal: plan on towards the goal
+            if self.path is not None:
+                cmd = self.follower.step(pose)
+        if cmd.status in ("blocked", "stale"):
+            return np.array([0.0, 0.0], np.float32)
+        return np.array([cmd.v, cmd.w], np.float32)
+
+    def state(self) -> str:
+        return self._state
+
+    def counters(self) -> dict[str, int]:
+        return {
+            "plan_failures": self.plan_failures,
+            "fallback_plans": self.fallback_plans,
+            "bumps": self.bumps,
+        }
+
+    def debug(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "T_world_base_est": getattr(self, "T_base_est", None),
+            "path": self.path,
+            "tree_edges": self.tree_edges,
+            "plan_ms": self._plan_ms,
+            "map_ms": self._map_ms,
+            "track_ms": self._track_ms,
+        }
+        if self.slam is not None and hasattr(self.slam, "debug"):
+            d.update(self.slam.debug())
+        return d
+
+
+def _length(path: np.ndarray) -> float:
+    return float(np.sum(np.hypot(*np.diff(path, axis=0).T))) if len(path) > 1 else 0.0
+
+
+def _make_simn(env: Any, config: dict[str, Any]) -> SimnAgent:
+    return SimnAgent(env, config, name="simn")
+
+
+def _make_rrtstar(env: Any, config: dict[str, Any]) -> SimnAgent:
+    return SimnAgent(env, {"planner": "uniform", **config}, name="rrtstar")
+
+
+register_agent("simn", _make_simn)
+register_agent("rrtstar", _make_rrtstar)
