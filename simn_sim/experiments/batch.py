@@ -125,18 +125,28 @@ class EpisodeResult:
     pid: int
     host: str
     peak_rss_mb: float  # peak resident memory of the worker process so far
+    cpu_s: float = 0.0  # CPU time (user + system, all threads) the worker spent on this task
 
 
 _ENV_CACHE: dict[tuple[str, str], Any] = {}
 
 
 def _limit_threads(n: int) -> None:
-    """Keep numeric libraries in a worker to ``n`` threads (workers share the cores)."""
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    """Keep numeric libraries and Mesa's software renderer (llvmpipe, which otherwise starts
+    one render thread per core) in a worker to ``n`` threads: the workers share the cores.
+    Takes effect for libraries not yet loaded (a pool worker calls it before anything else)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "LP_NUM_THREADS"):
         os.environ.setdefault(var, str(n))
     torch = sys.modules.get("torch")
     if torch is not None and torch.get_num_threads() != n:
         torch.set_num_threads(n)
+
+
+def _cpu_s() -> float:
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
 
 
 def _peak_rss_mb() -> float:
@@ -196,16 +206,19 @@ def _identity_record(task: EpisodeTask, error: str) -> dict[str, Any]:
     return rec
 
 
-def run_task(task: EpisodeTask) -> EpisodeResult:
+def run_task(task: EpisodeTask, limit_threads: bool = True) -> EpisodeResult:
     """Run one episode in this process, reusing this process's env. Never raises for an
-    episode failure (the record's ``error`` holds it); runs in pool and Ray workers."""
+    episode failure (the record's ``error`` holds it); runs in pool and Ray workers.
+    ``limit_threads``: apply ``task.threads`` (:func:`_limit_threads`; off in-process)."""
     import traceback
 
     import gymnasium as gym
 
     from simn_sim.experiments.runner import run_episode
 
-    _limit_threads(task.threads)
+    if limit_threads:
+        _limit_threads(task.threads)
+    cpu0 = _cpu_s()
     xy: list[np.ndarray] = []
 
     class _Track(gym.Wrapper):
@@ -240,7 +253,9 @@ def run_task(task: EpisodeTask) -> EpisodeResult:
         if rec.get("error") is not None:  # the env may be half-reset: start clean next time
             _drop_cached_env(task.env_id, task.env_cfg)
     traj = np.asarray(xy, np.float32).reshape(-1, 2)
-    return EpisodeResult(rec, traj, os.getpid(), socket.gethostname(), _peak_rss_mb())
+    return EpisodeResult(
+        rec, traj, os.getpid(), socket.gethostname(), _peak_rss_mb(), _cpu_s() - cpu0
+    )
 
 
 # --------------------------------------------------------------------------- configuration
@@ -457,7 +472,7 @@ def _crash_result(task: EpisodeTask, why: str) -> EpisodeResult:
 
 def _run_inprocess(tasks: Sequence[EpisodeTask], sink: ResultSink) -> None:
     for t in tasks:
-        sink(t, run_task(t))
+        sink(t, run_task(t, limit_threads=False))
 
 
 def _worker_init(threads: int) -> None:
@@ -568,7 +583,8 @@ def _run_ray(
 class BatchResult:
     """What :func:`run_batch` did. ``records``: the records written by this run (in order of
     completion); ``skipped``: episode ids already done; ``workers``: per worker process
-    ``{pid, host, episodes, peak_rss_mb}``."""
+    ``{pid, host, episodes, peak_rss_mb, cpu_s}`` (``cpu_s``: CPU seconds spent on tasks, env
+    creation included)."""
 
     out: Path
     records: list[dict[str, Any]]
@@ -719,9 +735,10 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
         if res.pid >= 0:
             w = workers.setdefault(
                 (res.host, res.pid),
-                {"host": res.host, "pid": res.pid, "episodes": 0, "peak_rss_mb": 0.0},
+                {"host": res.host, "pid": res.pid, "episodes": 0, "peak_rss_mb": 0.0, "cpu_s": 0.0},
             )
             w["episodes"] += 1
+            w["cpu_s"] = round(w["cpu_s"] + res.cpu_s, 3)
             w["peak_rss_mb"] = max(w["peak_rss_mb"], round(res.peak_rss_mb, 1))
         if bar is not None:
             ok = sum(bool(r.get("success")) for r in written)
@@ -903,7 +920,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="YAML of env config values")
     p.add_argument("--agent-config", type=Path, default=None, help="YAML of agent config values")
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (e.g. auto)")
-    p.add_argument("--threads-per-worker", type=int, default=1, help="numeric threads per worker")
+    p.add_argument(
+        "--threads-per-worker",
+        type=int,
+        default=1,
+        help="threads per worker for OpenMP/MKL/torch and Mesa llvmpipe rendering (default 1)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
