@@ -69,6 +69,10 @@ class SlamConfig(Config):
     carve_margin: float = 0.10  # seen-through depth must exceed the point's by this
     carve_frames: int = 2  # carve the current and the previous (n - 1) local frames
     semantics: bool = True
+    # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
+    # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and
+    # SDF queries ~3-40x slower under load (OpenMP threads contending with other processes).
+    torch_threads: int = 1
     seed: int = 0
     mapper: MapperConfig = dataclasses.field(default_factory=MapperConfig)
     registration: RegistrationConfig = dataclasses.field(default_factory=RegistrationConfig)
@@ -111,6 +115,7 @@ class SlamConfig(Config):
             require(getattr(self, f) >= 0, n, f, "must be >= 0")
         require(self.odom_sigma_rot > 0 and self.odom_sigma_trans > 0, n, "odom_sigma_rot", "> 0")
         require(self.carve_frames >= 1, n, "carve_frames", "must be >= 1")
+        require(self.torch_threads >= 0, n, "torch_threads", "must be >= 0 (0: leave as is)")
 
     @classmethod
     def for_agent(cls, **changes: Any) -> SlamConfig:

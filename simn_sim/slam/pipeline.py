@@ -38,6 +38,7 @@ import time
 from typing import Any
 
 import numpy as np
+import torch
 
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.geometry.se3 import inv_T, pose_error, transform_points
@@ -341,6 +342,22 @@ class SimnSlam:
         odometry); only its change since the previous call is used (so its drift does not
         enter), except on the first call, where it defines the world frame.
         """
+        n_threads = torch.get_num_threads()
+        if self.cfg.torch_threads and self.cfg.torch_threads != n_threads:
+            torch.set_num_threads(self.cfg.torch_threads)
+        try:
+            return self._process(t, rgb, depth, T_world_cam_prior)
+        finally:
+            if torch.get_num_threads() != n_threads:
+                torch.set_num_threads(n_threads)
+
+    def _process(
+        self,
+        t: float,
+        rgb: np.ndarray | None,
+        depth: np.ndarray,
+        T_world_cam_prior: np.ndarray | None,
+    ) -> SlamFrame:
         t0 = time.perf_counter()
         t = float(t)
         if self._hist and t <= self._hist[-1][0]:
@@ -651,21 +668,27 @@ class SimnSlam:
         }
 
     def debug(self) -> dict[str, Any]:
-        """Data for a rerun recording: the last frame's points and labels (world), the topo
-        nodes (anchor positions) and arcs (pairs of anchor positions with their kind)."""
-        nodes = {f: self.topo.anchor(f)[:3, 3].copy() for f in self.topo.frame_ids}
-        arcs = []
+        """Data for a rerun recording, with the keys :class:`simn_sim.viz.RerunRecorder`
+        reads from ``agent_debug``: ``local_frames`` ``{"current": (points (N, 3) world,
+        labels (N,))}`` (this frame's classified points), ``topo_nodes`` (K, 3) anchor
+        positions, ``topo_arcs`` list of (2, 3) segments, ``topo_arc_kinds``, ``track_ms``,
+        ``map_ms``, ``T_world_cam_est`` and (with ``T_base_cam``) ``T_world_base_est``."""
+        ids = self.topo.frame_ids
+        nodes = np.array([self.topo.anchor(f)[:3, 3] for f in ids]).reshape(-1, 3)
+        pos = {f: nodes[k] for k, f in enumerate(ids)}
+        arcs, kinds = [], []
         for i, j, e in self.topo.graph.edges(data=True):
-            kind = "loop" if "loop" in e["kinds"] else "odom"
-            arcs.append((nodes[i], nodes[j], kind))
+            arcs.append(np.stack([pos[i], pos[j]]))
+            kinds.append("loop" if "loop" in e["kinds"] else "odom")
         last = self.last
-        return {
-            "points_world": None if last is None else last.points_world,
-            "labels": None if last is None else last.labels,
-            "nodes": nodes,
-            "arcs": arcs,
-            "T_world_cam": None if last is None else last.T_world_cam,
-        }
+        out: dict[str, Any] = {"topo_nodes": nodes, "topo_arcs": arcs, "topo_arc_kinds": kinds}
+        if last is not None:
+            out["local_frames"] = {"current": (last.points_world, last.labels)}
+            out["track_ms"], out["map_ms"] = last.track_ms, last.map_ms
+            out["T_world_cam_est"] = last.T_world_cam
+            if self.T_base_cam is not None:
+                out["T_world_base_est"] = last.T_world_cam @ inv_T(self.T_base_cam)
+        return out
 
 
 def _voxel_pick(
