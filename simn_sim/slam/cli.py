@@ -21,7 +21,7 @@ import numpy as np
 
 from simn_sim.config import ConfigError
 from simn_sim.slam.config import SlamConfig, load_slam_config
-from simn_sim.slam.record import read_base, record_main
+from simn_sim.slam.record import read_base, read_odometry, record_main
 
 __all__ = ["record_main", "run_slam", "slam_main"]
 
@@ -38,8 +38,13 @@ def run_slam(
     max_frames: int | None = None,
     rerun: bool = False,
     progress: bool = True,
+    use_odometry: bool = True,
 ) -> dict[str, Any]:
     """Run the pipeline on a TUM folder and write the outputs; returns the metrics dict.
+
+    With ``use_odometry`` and an ``odometry.txt`` in the folder (written by ``simn-sim record``:
+    wheel odometry, as the navigation agent has it), its increments are the motion prior;
+    otherwise constant velocity.
 
     Raises :class:`~simn_sim.io.tum.TumFormatError` for a missing or malformed folder.
     """
@@ -51,6 +56,7 @@ def run_slam(
     seq = read_tum(folder, camera)
     n = len(seq) if max_frames is None else min(len(seq), int(max_frames))
     T_base_cam = read_base(folder)
+    odom = read_odometry(folder) if use_odometry else None
     slam = SimnSlam(cfg, seq.intrinsics, T_base_cam)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -72,7 +78,8 @@ def run_slam(
     t_wall = time.perf_counter()
     for k in it:
         fr = seq[k]
-        res = slam.process(fr.timestamp, fr.rgb, fr.depth)
+        prior = None if odom is None else odom.get(round(fr.timestamp, 6))
+        res = slam.process(fr.timestamp, fr.rgb, fr.depth, prior)
         track_ms.append(res.track_ms)
         map_ms.append(res.map_ms)
         iters.append(res.iterations)
@@ -99,6 +106,7 @@ def run_slam(
         "iterations_median": _median(iters),
         "tracking_failures": failures,
         "torch_threads": cfg.torch_threads,
+        "prior": "wheel odometry" if odom is not None else "constant velocity",
     }
     if len(gt) >= 2:
         m = ate_rpe(traj, gt)
@@ -175,6 +183,9 @@ def slam_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--config", type=Path, default=None, help="SlamConfig YAML")
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument(
+        "--no-odometry", action="store_true", help="ignore odometry.txt (constant-velocity prior)"
+    )
     a = ap.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
     if a.max_frames is not None and a.max_frames < 1:
@@ -182,7 +193,10 @@ def slam_main(argv: list[str] | None = None) -> int:
         return 2
     try:
         cfg = load_slam_config(a.config)
-        m = run_slam(a.tum, a.out, a.camera, cfg, a.max_frames, a.rerun, not a.no_progress)
+        m = run_slam(
+            a.tum, a.out, a.camera, cfg, a.max_frames, a.rerun, not a.no_progress,
+            not a.no_odometry,
+        )  # fmt: skip
     except (TumFormatError, ConfigError) as e:
         print(f"simn-sim slam: error: {e}", file=sys.stderr)
         return 2

@@ -53,7 +53,21 @@ class SlamConfig(Config):
     #   first observation per voxel kept, normals from the organised depth image).
     track_sdf: Literal["implicit", "points"] = "points"
     surface_voxel: float = 0.02
+    # a point further than this from the surface store has no SDF (invalid): beyond the
+    # store's coverage, nearest-point residuals pull the frame back towards the covered part
+    point_sdf_max_dist: float = 0.05
     sdf_rebuild_growth: float = 0.1  # rebuild the point SDF when the store grew by this share
+    # Tracking registration: ``registration`` with these two replaced (the loop-closure check
+    # keeps the strict values). A weakly constrained frame (a corridor: walls + floor) is not
+    # rejected; instead the registration is fused with the motion prediction through its
+    # covariance, so the prediction fills in the degenerate directions.
+    track_degeneracy_ratio: float = 1e-7
+    track_min_valid_fraction: float = 0.2
+    fuse_prior: bool = True
+    prior_sigma_rot_deg: float = 1.5  # constant-velocity prediction uncertainty per frame
+    prior_sigma_trans: float = 0.03  # m
+    odom_prior_sigma_rot_deg: float = 0.3  # an external (wheel odometry) increment per frame
+    odom_prior_sigma_trans: float = 0.005  # m
     max_correction_m: float = 0.3  # a registration moving the prior further is rejected
     max_correction_deg: float = 20.0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
@@ -97,7 +111,14 @@ class SlamConfig(Config):
             "'implicit' tracking needs map_kind 'implicit'",
         )
         require(self.sdf_rebuild_growth >= 0, n, "sdf_rebuild_growth", "must be >= 0")
-        for f in ("track_voxel", "obstacle_voxel", "floor_voxel", "carve_margin", "surface_voxel"):
+        for f in (
+            "track_voxel",
+            "obstacle_voxel",
+            "floor_voxel",
+            "carve_margin",
+            "surface_voxel",
+            "point_sdf_max_dist",
+        ):
             v = getattr(self, f)
             require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
         require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")
@@ -105,6 +126,12 @@ class SlamConfig(Config):
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
+        require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
+        require(0 <= self.track_min_valid_fraction <= 1, n, "track_min_valid_fraction", "[0, 1]")
+        require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")
+        require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")
+        require(self.odom_prior_sigma_rot_deg > 0, n, "odom_prior_sigma_rot_deg", "must be > 0")
+        require(self.odom_prior_sigma_trans > 0, n, "odom_prior_sigma_trans", "must be > 0")
         require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
         for f in (
             "odom_sigma_rot",

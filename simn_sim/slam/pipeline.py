@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.geometry.se3 import inv_T, pose_error, transform_points
+from simn_sim.geometry.se3 import inv_T, pose_error, se3_exp, transform_points
 from simn_sim.mapping.mapper import ImplicitMap
 from simn_sim.mapping.perception import voxel_downsample
 from simn_sim.semantics import FLOOR, OBSTACLE, classify_points, normals_from_organized
@@ -127,8 +127,9 @@ class PointFrameMap:
     normals in anchor coordinates; ``sdf_and_grad`` is its point-to-plane SDF. Implements the
     :class:`~simn_sim.tracking.localframes.FrameMap` protocol (no learned features)."""
 
-    def __init__(self, surface: _VoxelStore, labels: _VoxelStore | None = None) -> None:
+    def __init__(self, surface: _VoxelStore, max_dist: float = 0.05) -> None:
         self.surface = surface
+        self.max_dist = float(max_dist)
         self._sdf: PointCloudSDF | None = None
         self._n = -1
 
@@ -139,7 +140,9 @@ class PointFrameMap:
             return None
         if self._sdf is None or n > self._n * (1 + rebuild_growth) or n < self._n:
             try:
-                self._sdf = PointCloudSDF(self.surface.points, self.surface.extra, max_dist=0.1)
+                self._sdf = PointCloudSDF(
+                    self.surface.points, self.surface.extra, max_dist=self.max_dist
+                )
             except ValueError:
                 return None
             self._n = n
@@ -194,6 +197,15 @@ class SimnSlam:
         self._ray_x = ((u - intrinsics.cx) / intrinsics.fx).astype(np.float32)
         self._ray_y = ((v - intrinsics.cy) / intrinsics.fy).astype(np.float32)
         self.rng = np.random.default_rng(self.cfg.seed)
+        self._track_reg = self.cfg.registration.replace(
+            degeneracy_ratio=self.cfg.track_degeneracy_ratio,
+            min_valid_fraction=self.cfg.track_min_valid_fraction,
+        )
+        c = self.cfg
+        sr, st = np.radians(c.prior_sigma_rot_deg), c.prior_sigma_trans
+        self._cv_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+        sr, st = np.radians(c.odom_prior_sigma_rot_deg), c.odom_prior_sigma_trans
+        self._odom_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
         self.topo = TopoMap()
         self.trigger = FrameTrigger(self.cfg.trigger)
         self._states: dict[int, _FrameState] = {}
@@ -247,7 +259,7 @@ class SimnSlam:
     # ------------------------------------------------------------------ frames
     def _new_map(self, surface: _VoxelStore):
         if self.cfg.map_kind == "points":
-            return PointFrameMap(surface)
+            return PointFrameMap(surface, self.cfg.point_sdf_max_dist)
         if self._base_map is None:
             self._base_map = ImplicitMap(self.cfg.mapper)
             return self._base_map
@@ -265,7 +277,9 @@ class SimnSlam:
             frame,
             _VoxelStore(self.cfg.obstacle_voxel),
             _VoxelStore(self.cfg.floor_voxel),
-            frame.map if isinstance(frame.map, PointFrameMap) else PointFrameMap(surface),
+            frame.map
+            if isinstance(frame.map, PointFrameMap)
+            else PointFrameMap(surface, self.cfg.point_sdf_max_dist),
         )
         self.topo.add_frame(frame)
         prev = self.current_frame_id
@@ -382,10 +396,14 @@ class SimnSlam:
             T_pred_world = T_world_cam.copy()
         else:
             A = self.topo.anchor(self.current_frame_id)
-            T_pred = self._predict(t, prior)
+            T_pred = _rigid(self._predict(t, prior))
             T_pred_world = A @ T_pred
-            T_anchor_cam, success, reason, iters, against, rms = self._register(track_pts, T_pred)
-            T_world_cam = A @ T_anchor_cam
+            use_odom = prior is not None and self._last_prior is not None
+            T_anchor_cam, success, reason, iters, against, rms = self._register(
+                track_pts, T_pred, self._odom_info if use_odom else self._cv_info
+            )
+            T_anchor_cam = _rigid(T_anchor_cam)
+            T_world_cam = _rigid(A @ T_anchor_cam)
         if not success:
             self.n_track_failures += 1
         track_ms = (time.perf_counter() - t0) * 1e3
@@ -449,7 +467,7 @@ class SimnSlam:
         return out
 
     def _register(
-        self, pts: np.ndarray, T_pred: np.ndarray
+        self, pts: np.ndarray, T_pred: np.ndarray, prior_info: np.ndarray
     ) -> tuple[np.ndarray, bool, str, int, int | None, float]:
         """Register against the tracking target; the prediction on any failure."""
         if len(pts) < self.cfg.registration.min_valid_points:
@@ -462,17 +480,30 @@ class SimnSlam:
         T_cur_f = inv_T(self.topo.anchor(cur)) @ self.topo.anchor(fid)
         init = inv_T(T_cur_f) @ T_pred
         try:
-            res = register(pts, sdf, init, self.cfg.registration)
+            res = register(pts, sdf, init, self._track_reg)
         except Exception as e:  # noqa: BLE001 - tracking must never raise
             return T_pred, False, f"registration error: {type(e).__name__}: {e}", 0, fid, np.nan
         if not res.success:
             return T_pred, False, res.reason, res.iterations, fid, res.final_rms
-        T_est = T_cur_f @ res.pose
+        T_est = _rigid(T_cur_f @ res.pose)
+        reason = "ok"
+        if self.cfg.fuse_prior:
+            # Bayesian fusion in the camera-frame tangent at the prediction: the registration
+            # decides the well-constrained directions, the prediction the degenerate ones.
+            delta = se3_log(inv_T(T_pred) @ T_est)
+            try:
+                info = np.linalg.inv(0.5 * (res.covariance + res.covariance.T))
+                fused = np.linalg.solve(info + prior_info, info @ delta)
+                T_est = _rigid(T_pred @ se3_exp(fused))
+            except np.linalg.LinAlgError:
+                pass
+            if res.eig_ratio < self.cfg.registration.degeneracy_ratio:
+                reason = f"ok (weakly constrained, eigenvalue ratio {res.eig_ratio:.1e})"
         dt, dr = pose_error(T_pred, T_est)
         if dt > self.cfg.max_correction_m or np.degrees(dr) > self.cfg.max_correction_deg:
             why = f"correction {dt:.3f} m / {np.degrees(dr):.1f} deg beyond the budget"
             return T_pred, False, why, res.iterations, fid, res.final_rms
-        return T_est, True, "ok", res.iterations, fid, res.final_rms
+        return T_est, True, reason, res.iterations, fid, res.final_rms
 
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the revisit check: against frame ``fid``'s SDF."""
@@ -689,6 +720,18 @@ class SimnSlam:
             if self.T_base_cam is not None:
                 out["T_world_base_est"] = last.T_world_cam @ inv_T(self.T_base_cam)
         return out
+
+
+def _rigid(T: np.ndarray) -> np.ndarray:
+    """Project a nearly rigid 4x4 transform onto SE(3) (products of many poses drift)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, T[:3, 3]
+    return out
 
 
 def _voxel_pick(

@@ -11,7 +11,9 @@ Trajectories (the base is driven by velocity commands ``[v, w]``, 10 Hz):
   seed), so the sequence ends where it began (a revisit).
 
 Besides the TUM layout (:class:`~simn_sim.io.tum.TumWriter`) the folder gets ``base.yaml``
-(``T_base_cam``, so the floor is known) and, with ``segmentation=True``, ``seg/<t>.png``
+(``T_base_cam``, so the floor is known), ``odometry.txt`` (TUM-format camera poses from the
+env's wheel odometry, ``planar(odometry) @ T_base_cam`` in the start frame, with the env's
+odometry noise: ``odom_noise`` = (per-metre scale std, per-radian-and-metre heading std)) and, with ``segmentation=True``, ``seg/<t>.png``
 (8-bit semantic labels of the simulator: 1 floor, 2 obstacle, 4 person) listed in ``seg.txt``.
 """
 
@@ -27,7 +29,8 @@ import cv2
 import numpy as np
 import yaml
 
-from simn_sim.io.tum import TumWriter
+from simn_sim.geometry.se3 import planar_T
+from simn_sim.io.tum import TumWriter, pose_to_tum, read_groundtruth
 
 Trajectory = Literal["desk", "corridor", "loop"]
 TRAJECTORIES = ("desk", "corridor", "loop")
@@ -37,8 +40,29 @@ def _pose2d(T: np.ndarray) -> np.ndarray:
     return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
 
 
-def _waypoints(env, start: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
-    fs = env.free_space
+def _free_space(env, margin: float):
+    """The env's free space with obstacles inflated by the robot radius + ``margin`` (as the
+    oracle agent plans), falling back to the bare radius."""
+    from simn_sim.env.scene import ROBOT_RADIUS, ROBOT_Z_BAND
+    from simn_sim.geometry.freespace import FreeSpace2D
+
+    return FreeSpace2D(
+        env.layout.footprints(ROBOT_Z_BAND),
+        robot_radius=ROBOT_RADIUS + margin,
+        bounds=env.layout.bounds,
+    )
+
+
+def _path(fs_list, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    for fs in fs_list:
+        if fs.is_free(np.array([a, b])).all():
+            p = fs.shortest_path(a, b)
+            if p is not None:
+                return p
+    return None
+
+
+def _waypoints(fs, start: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
     field = fs.distance_field_to(start)
     cands = fs.sample_free(rng, 256, min_clearance=0.45)
     d = field.distance(cands)
@@ -66,6 +90,7 @@ def record_sequence(
     seed: int = 0,
     segmentation: bool = False,
     overwrite: bool = False,
+    odom_noise: tuple[float, float] = (0.02, 0.01),
 ) -> dict:
     """Drive the env along ``trajectory`` and write a TUM folder at ``out``.
 
@@ -88,6 +113,8 @@ def record_sequence(
         "layout_seed": layout_seed,
         "segmentation": segmentation,
         "max_episode_steps": cap + 10,
+        "odom_noise_trans": float(odom_noise[0]),
+        "odom_noise_rot": float(odom_noise[1]),
     }
     env = gym.make("SimnOffice-v0", config=cfg)
     try:
@@ -99,21 +126,26 @@ def record_sequence(
         (out / "base.yaml").write_text(
             yaml.safe_dump({"T_base_cam": np.asarray(cam.T_base_cam).tolist()}, sort_keys=False)
         )
+        (out / "odometry.txt").write_text(
+            "# wheel odometry: camera pose planar(x, y, yaw) @ T_base_cam (start frame)\n"
+            "# timestamp tx ty tz qx qy qz qw\n"
+        )
         if segmentation:
             (out / "seg").mkdir(exist_ok=True)
             (out / "seg.txt").write_text("# semantic labels (1 floor, 2 obstacle, 4 person)\n")
         start = info["T_world_base"][:2, 3].copy()
         rng = np.random.default_rng(seed)
         legs: list[np.ndarray] = []
+        fss = [_free_space(u, 0.15), _free_space(u, 0.08), u.free_space]
         if trajectory == "corridor":
             legs = [np.asarray(info["episode_spec"]["goal"], float)]
         elif trajectory == "loop":
-            legs = _waypoints(u, start, rng)
+            legs = _waypoints(fss[0], start, rng)
         fcfg = FollowerConfig(v_max=0.5, lookahead=0.5, goal_tolerance=0.15)
         follower = PathFollower(fcfg)
         leg = 0
         if legs:
-            path = u.free_space.shortest_path(start, legs[0])
+            path = _path(fss, start, legs[0])
             if path is None:
                 raise RuntimeError("no path to the first waypoint")
             follower.set_path(path)
@@ -123,6 +155,10 @@ def record_sequence(
         for k in range(cap):
             t = 1.0 + k * dt
             writer.add(t, obs["rgb"], obs["depth"], info["T_world_cam"])
+            x, y, yaw = (float(v) for v in obs["odometry"])
+            T_odom_cam = planar_T(x, y, yaw) @ np.asarray(cam.T_base_cam, float)
+            with open(out / "odometry.txt", "a") as f:
+                f.write(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in pose_to_tum(T_odom_cam)) + "\n")
             if segmentation:
                 name = f"{t:.6f}.png"
                 cv2.imwrite(str(out / "seg" / name), info["segmentation"].astype(np.uint8))
@@ -140,13 +176,13 @@ def record_sequence(
                     if leg >= len(legs):
                         break
                     here = info["T_world_base"][:2, 3]
-                    path = u.free_space.shortest_path(here, legs[leg])
+                    path = _path(fss, here, legs[leg])
                     if path is None:
                         break
                     follower.set_path(path)
                     cmd = follower.step(_pose2d(info["T_world_base"]))
                 elif cmd.status in ("stale", "blocked"):
-                    path = u.free_space.shortest_path(info["T_world_base"][:2, 3], legs[leg])
+                    path = _path(fss, info["T_world_base"][:2, 3], legs[leg])
                     if path is not None:
                         follower.set_path(path)
                     cmd = follower.step(_pose2d(info["T_world_base"]))
@@ -179,6 +215,15 @@ def read_base(folder: str | Path) -> np.ndarray | None:
     return T
 
 
+def read_odometry(folder: str | Path) -> dict[float, np.ndarray] | None:
+    """``{timestamp (rounded to 1 us): T_odom_cam (4, 4)}`` from ``odometry.txt``, or None."""
+    p = Path(folder) / "odometry.txt"
+    if not p.is_file():
+        return None
+    stamps, poses = read_groundtruth(p)
+    return {round(float(t), 6): T for t, T in zip(stamps, poses, strict=True)}
+
+
 def record_main(argv: list[str] | None = None) -> int:
     """``simn-sim record``: write a simulated TUM sequence."""
     ap = argparse.ArgumentParser(prog="simn-sim record", description=__doc__.split("\n")[0])
@@ -192,11 +237,19 @@ def record_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--segmentation", action="store_true", help="also write seg/ labels")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument(
+        "--odom-noise",
+        type=float,
+        nargs=2,
+        default=(0.02, 0.01),
+        metavar=("TRANS", "ROT"),
+        help="wheel-odometry noise written to odometry.txt (scale std per metre, heading std)",
+    )
     a = ap.parse_args(argv)
     try:
         s = record_sequence(
             a.out, a.trajectory, a.noise, a.width, a.height, a.frames, a.layout_seed, a.seed,
-            a.segmentation, a.overwrite,
+            a.segmentation, a.overwrite, tuple(a.odom_noise),
         )  # fmt: skip
     except (FileExistsError, ValueError, RuntimeError) as e:
         print(f"simn-sim record: error: {e}")
