@@ -3,8 +3,8 @@
     MUJOCO_GL=egl .venv/bin/python scripts/bench_batch.py [--repeats 2] [--json out.json]
 
 Runs a small fixed oracle batch (``envs/episodes/regression_v1.json``: 6 short episodes over
-3 layouts, geodesic 3-6 m) on ``SimnOfficeFast-v0`` (320x240) for each backend and worker
-count, each time into a fresh folder, and reports:
+3 layouts, geodesic 3-6 m; ``--episode-file`` for another set) on ``SimnOfficeFast-v0``
+(320x240) for each backend and worker count, each time into a fresh folder, and reports:
 
 * ``eps/h``: episodes per hour over the batch's wall time (pool start-up, worker imports and
   env creation included; for Ray, ``ray.init`` is excluded and reported on its own);
@@ -42,8 +42,10 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def run_one(backend: str, workers: int, tmp: Path) -> dict[str, Any]:
-    """One batch of the regression set; returns its figures."""
+def run_one(
+    backend: str, workers: int, tmp: Path, episode_file: Path | None = None, plots: bool = False
+) -> dict[str, Any]:
+    """One batch of ``episode_file`` (default: the regression set); returns its figures."""
     from simn_sim.experiments.batch import BatchConfig, regression_episode_file, run_batch
 
     load = os.getloadavg()[0]
@@ -53,11 +55,11 @@ def run_one(backend: str, workers: int, tmp: Path) -> dict[str, Any]:
             out=out,
             agent="oracle",
             env_id=ENV_ID,
-            episode_file=regression_episode_file(),
+            episode_file=episode_file or regression_episode_file(),
             workers=workers,
             backend=backend,
             progress=False,
-            plots=False,
+            plots=plots,
         )
     )
     init = float(res.backend_info.get("ray_init_s", 0.0))
@@ -85,6 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backends", nargs="+", default=["local", "ray"])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--keep", type=Path, default=None, help="keep the batch folders here")
+    p.add_argument(
+        "--episode-file",
+        type=Path,
+        default=None,
+        help="another episode set (default envs/episodes/regression_v1.json)",
+    )
     args = p.parse_args(argv)
     if "ray" in args.backends:
         try:
@@ -94,11 +103,13 @@ def main(argv: list[str] | None = None) -> int:
             args.backends = [b for b in args.backends if b != "ray"]
 
     runs: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory(prefix="simn-bench-batch-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="simn-bench-batch-") as tmp_dir:
+        tmp = args.keep or Path(tmp_dir)
+        tmp.mkdir(parents=True, exist_ok=True)
         for rep in range(args.repeats):
             for backend in args.backends:
                 for w in args.workers:
-                    r = run_one(backend, w, Path(tmp))
+                    r = run_one(backend, w, tmp, args.episode_file, plots=args.keep is not None)
                     r["repeat"] = rep
                     runs.append(r)
                     print(
@@ -116,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
 
     print()
     print(f"machine: {_cpu_model()}, {os.cpu_count()} logical CPUs, {platform.platform()}")
-    print(f"batch: 6 oracle episodes (regression_v1), {ENV_ID} 320x240; median of {args.repeats}")
+    name = args.episode_file.stem if args.episode_file else "regression_v1"
+    n_eps = runs[0]["episodes"] if runs else 0
+    print(f"batch: {n_eps} oracle episodes ({name}), {ENV_ID} 320x240; median of {args.repeats}")
     print()
     print(
         "| backend | workers | eps/h | wall s | Ray init s | peak RSS / worker (MB) "

@@ -228,3 +228,45 @@ def test_ray_backend_gives_the_same_records_as_local(tmp_path: Path) -> None:
     assert len(ray_.records) == 2 and ray_.n_errors == 0
     assert _outcomes(ray_.records) == _outcomes(local.records)
     assert ray_.config_hash == local.config_hash
+
+
+def _flaky_task(task: Any) -> Any:
+    """Stands in for ``run_task`` in a spawned worker: ``die-*`` episodes kill the worker
+    process (``die-once`` only on its first attempt, remembered by a marker file)."""
+    import os
+
+    from simn_sim.experiments.batch import EpisodeResult, _identity_record
+
+    eid = task.episode["episode_id"]
+    marker = Path(task.rerun_path) if task.rerun_path else None
+    if eid == "die-always" or (eid == "die-once" and marker is not None and not marker.exists()):
+        if marker is not None:
+            marker.touch()
+        os._exit(3)
+    rec = _identity_record(task, "")
+    rec.update(error=None, termination="success", success=True)
+    return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
+
+
+def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
+    from simn_sim.experiments.batch import EpisodeTask, _run_local
+
+    def task(eid: str) -> EpisodeTask:
+        ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
+        return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep, str(tmp_path / f"{eid}.mark"))
+
+    tasks = [task(e) for e in ("a", "die-once", "b", "die-always", "c")]
+    got: dict[str, list[dict[str, Any]]] = {}
+    _run_local(
+        tasks,
+        2,
+        lambda t, r: got.setdefault(r.record["episode_id"], []).append(r.record),
+        fn=_flaky_task,
+    )
+    assert sorted(got) == ["a", "b", "c", "die-always", "die-once"]
+    assert all(len(v) == 1 for v in got.values())  # exactly one record per episode
+    assert got["die-once"][0]["error"] is None  # retried in a fresh pool
+    err = got["die-always"][0]["error"]
+    assert err is not None and "worker process died" in err and "alone 2 times" in err
+    for e in ("a", "b", "c"):  # innocent bystanders of a dying worker still get a clean record
+        assert got[e][0]["error"] is None

@@ -27,8 +27,8 @@ Backends: ``local`` is a ``ProcessPoolExecutor`` with the ``spawn`` start method
 context must never be forked). Each worker keeps its env between episodes (one per env id and
 config; the env itself rebuilds the scene when an episode's layout differs). At most ``workers``
 episodes are in flight; when a worker process dies (e.g. a segfault in a native library) the
-pool is rebuilt and the episodes that were in flight run again, and an episode in flight during
-two such deaths gets an error record. ``workers=0`` runs in this process (debugging). ``ray``
+episodes that were in flight run again one at a time in a fresh process, so that the death is
+pinned on the right episode, which gets an error record after dying twice on its own. ``workers=0`` runs in this process (debugging). ``ray``
 runs the same episodes as Ray tasks (``ray.init(address=...)`` joins a cluster; otherwise a
 local instance with ``num_cpus=workers``); the driver writes every output except the ``.rrd``
 files, which the workers write (shared storage on a cluster).
@@ -88,7 +88,8 @@ BATCH_METRICS: tuple[str, ...] = (
     "plan_ms_median",
     "wall_time_s",
 )
-#: Attempts of one episode when the worker process running it dies.
+#: An episode whose worker process dies this many times while it runs alone gets an error
+#: record (local backend); Ray retries a task ``MAX_ATTEMPTS - 1`` times.
 MAX_ATTEMPTS = 2
 
 
@@ -479,56 +480,77 @@ def _worker_init(threads: int) -> None:
     _limit_threads(threads)
 
 
-def _run_local(tasks: Sequence[EpisodeTask], workers: int, sink: ResultSink) -> None:
-    """Process pool (spawn), at most ``workers`` episodes in flight; see the module doc for
-    what happens when a worker process dies."""
+def _pool_pass(
+    queue: list[EpisodeTask],
+    width: int,
+    sink: ResultSink,
+    fn: Callable[[EpisodeTask], EpisodeResult],
+    threads: int,
+) -> list[EpisodeTask]:
+    """Run tasks popped from ``queue`` in one spawn pool of ``width`` processes, at most
+    ``width`` in flight. Returns the tasks that were in flight when a worker process died
+    (the pool is then unusable; the rest stay in ``queue``), or [] when ``queue`` ran empty."""
     from concurrent.futures.process import BrokenProcessPool
 
-    ctx = multiprocessing.get_context("spawn")
+    pool = cf.ProcessPoolExecutor(
+        max_workers=width,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_worker_init,
+        initargs=(threads,),
+    )
+    inflight: dict[cf.Future, EpisodeTask] = {}
+    broken = False
+    try:
+        while queue or inflight:
+            while queue and len(inflight) < width:
+                t = queue.pop()
+                inflight[pool.submit(fn, t)] = t
+            done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                try:
+                    res = fut.result()
+                except BrokenProcessPool:
+                    broken = True
+                    continue  # stays in flight: returned below
+                except Exception as e:  # noqa: BLE001 - e.g. an unpicklable result
+                    res = _crash_result(inflight[fut], f"{type(e).__name__} in the worker: {e}")
+                sink(inflight.pop(fut), res)
+            if broken:
+                return list(inflight.values())
+        return []
+    finally:
+        pool.shutdown(wait=not broken, cancel_futures=True)
+
+
+def _run_local(
+    tasks: Sequence[EpisodeTask],
+    workers: int,
+    sink: ResultSink,
+    fn: Callable[[EpisodeTask], EpisodeResult] = run_task,
+) -> None:
+    """Process pool (spawn), at most ``workers`` episodes in flight.
+
+    When a worker process dies, the episodes that were in flight are suspects: each runs again
+    alone in a fresh one-process pool, so a death is pinned on the right episode; one whose
+    process dies ``MAX_ATTEMPTS`` times on its own gets an error record, the others their
+    normal record. ``fn``: the task function (module-level, so that a spawned worker can
+    import it; tests swap it)."""
     queue = list(reversed(tasks))
-    attempts: dict[int, int] = {}
     threads = tasks[0].threads if tasks else 1
-    while queue:
-        pool = cf.ProcessPoolExecutor(
-            max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(threads,)
-        )
-        inflight: dict[cf.Future, EpisodeTask] = {}
-        broken = False
-        try:
-            while queue or inflight:
-                while queue and len(inflight) < workers:
-                    t = queue.pop()
-                    attempts[id(t)] = attempts.get(id(t), 0) + 1
-                    inflight[pool.submit(run_task, t)] = t
-                done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
-                for fut in done:
-                    t = inflight.pop(fut)
-                    try:
-                        res = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        inflight[fut] = t  # handled below with the others in flight
-                        continue
-                    except Exception as e:  # noqa: BLE001 - e.g. an unpicklable result
-                        res = _crash_result(t, f"{type(e).__name__} in the worker: {e}")
-                    sink(t, res)
-                if broken:
-                    break
-        finally:
-            pool.shutdown(wait=not broken, cancel_futures=True)
-        if broken:
-            for t in inflight.values():
-                if attempts[id(t)] >= MAX_ATTEMPTS:
-                    sink(
-                        t,
-                        _crash_result(
-                            t,
-                            "worker process died while running this episode "
-                            f"({attempts[id(t)]} attempts)",
-                        ),
-                    )
+    suspects: list[EpisodeTask] = []
+    deaths: dict[int, int] = {}
+    while queue or suspects:
+        if suspects:
+            t = suspects.pop()
+            if _pool_pass([t], 1, sink, fn, threads):
+                deaths[id(t)] = deaths.get(id(t), 0) + 1
+                if deaths[id(t)] >= MAX_ATTEMPTS:
+                    why = f"worker process died running this episode alone {deaths[id(t)]} times"
+                    sink(t, _crash_result(t, why))
                 else:
-                    queue.append(t)
+                    suspects.append(t)
+        else:
+            suspects.extend(_pool_pass(queue, workers, sink, fn, threads))
 
 
 def _run_ray(
