@@ -55,7 +55,8 @@ class SlamConfig(Config):
     surface_voxel: float = 0.02
     # a point further than this from the surface store has no SDF (invalid): beyond the
     # store's coverage, nearest-point residuals pull the frame back towards the covered part
-    point_sdf_max_dist: float = 0.05
+    point_sdf_max_dist: float = 0.03
+    loop_sdf_max_dist: float = 0.15  # validity radius of the point SDF in revisit checks
     sdf_rebuild_growth: float = 0.1  # rebuild the point SDF when the store grew by this share
     # Tracking registration: ``registration`` with these two replaced (the loop-closure check
     # keeps the strict values). A weakly constrained frame (a corridor: walls + floor) is not
@@ -64,6 +65,7 @@ class SlamConfig(Config):
     track_degeneracy_ratio: float = 1e-7
     track_min_valid_fraction: float = 0.2
     fuse_prior: bool = True
+    weak_ratio: float = 1e-2  # information eigenvalues below this share of the largest: dropped
     prior_sigma_rot_deg: float = 1.5  # constant-velocity prediction uncertainty per frame
     prior_sigma_trans: float = 0.03  # m
     odom_prior_sigma_rot_deg: float = 0.3  # an external (wheel odometry) increment per frame
@@ -128,6 +130,7 @@ class SlamConfig(Config):
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
         require(0 <= self.track_min_valid_fraction <= 1, n, "track_min_valid_fraction", "[0, 1]")
+        require(0 <= self.weak_ratio < 1, n, "weak_ratio", "must be in [0, 1)")
         require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")
         require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")
         require(self.odom_prior_sigma_rot_deg > 0, n, "odom_prior_sigma_rot_deg", "must be > 0")

@@ -170,6 +170,7 @@ class _FrameState:
     surface: PointFrameMap  # tracking model (2 cm voxels + normals), anchor coordinates
     n_trained: int = 0
     n_obs: int = 0
+    loop_sdf: tuple[int, PointCloudSDF] | None = None
 
 
 class SimnSlam:
@@ -493,6 +494,11 @@ class SimnSlam:
             delta = se3_log(inv_T(T_pred) @ T_est)
             try:
                 info = np.linalg.inv(0.5 * (res.covariance + res.covariance.T))
+                # weak directions (eigenvalue below ``weak_ratio`` of the largest) carry a bias
+                # of the model's edges, not information: drop them, the prior decides there
+                ev, V = np.linalg.eigh(0.5 * (info + info.T))
+                ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
+                info = (V * ev) @ V.T
                 fused = np.linalg.solve(info + prior_info, info @ delta)
                 T_est = _rigid(T_pred @ se3_exp(fused))
             except np.linalg.LinAlgError:
@@ -507,7 +513,14 @@ class SimnSlam:
 
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the revisit check: against frame ``fid``'s SDF."""
-        sdf = self._sdf_of(fid, growth=0.0)
+        if self.cfg.track_sdf == "implicit":
+            sdf = self._sdf_of(fid, growth=0.0)
+        else:  # a wider validity radius than tracking: the drift may be decimetres
+            st = self._states[fid]
+            if st.loop_sdf is None or st.loop_sdf[0] != len(st.surface.surface):
+                P, N = st.surface.surface.points, st.surface.surface.extra
+                st.loop_sdf = (len(P), PointCloudSDF(P, N, max_dist=self.cfg.loop_sdf_max_dist))
+            sdf = st.loop_sdf[1].sdf_and_grad
         if sdf is None:
             raise ValueError(f"frame {fid} has no map to register against")
         return register(pts, sdf, T_init, self.cfg.registration)

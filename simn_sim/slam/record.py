@@ -6,9 +6,10 @@ Trajectories (the base is driven by velocity commands ``[v, w]``, 10 Hz):
   with a slow yaw sway of up to 0.35 rad/s (net travel a few decimetres, viewpoint +-15 deg);
 * ``corridor``: the exact shortest path (``env.free_space``) to the episode's goal, followed by
   the pure-pursuit follower at up to 0.5 m/s;
-* ``loop``: start -> waypoint A -> waypoint B -> start along shortest paths (A and B are free
-  points 2.5-5 m from the start, in directions at least 90 deg apart, chosen with the layout
-  seed), so the sequence ends where it began (a revisit).
+* ``loop``: start -> waypoint A -> waypoint B -> start -> 1.2 m along the first leg again,
+  along shortest paths (A and B are free points 2.5-5 m from the start, in directions at least
+  90 deg apart, chosen with ``seed``), so the sequence ends where it began, looking the same way
+  (a revisit).
 
 Besides the TUM layout (:class:`~simn_sim.io.tum.TumWriter`) the folder gets ``base.yaml``
 (``T_base_cam``, so the floor is known), ``odometry.txt`` (TUM-format camera poses from the
@@ -141,6 +142,16 @@ def record_sequence(
             legs = [np.asarray(info["episode_spec"]["goal"], float)]
         elif trajectory == "loop":
             legs = _waypoints(fss[0], start, rng)
+            # finish by driving 1.2 m along the first leg again, so the end views what the
+            # start viewed (a revisit the descriptors and the registration can recognise)
+            first = _path(fss, start, legs[0])
+            if first is not None:
+                seg = np.hypot(*np.diff(first, axis=0).T)
+                cum = np.concatenate([[0.0], np.cumsum(seg)])
+                s_end = min(1.2, float(cum[-1]))
+                i = int(np.clip(np.searchsorted(cum, s_end) - 1, 0, len(seg) - 1))
+                f = (s_end - cum[i]) / max(seg[i], 1e-9)
+                legs.append(first[i] + f * (first[i + 1] - first[i]))
         fcfg = FollowerConfig(v_max=0.5, lookahead=0.5, goal_tolerance=0.15)
         follower = PathFollower(fcfg)
         leg = 0
