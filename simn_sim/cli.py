@@ -145,10 +145,18 @@ def cmd_episodes(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
-    from simn_sim.experiments.compare import main as compare_main
+def _passthrough(sub, name: str, help_: str, target: str) -> None:
+    """A sub-command whose arguments are parsed by ``target`` (``module:function(argv) -> int``)."""
+    p = sub.add_parser(name, help=help_, add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
 
-    return compare_main(args.rest)
+    def run(args: argparse.Namespace) -> int:
+        import importlib
+
+        mod, fn = target.split(":")
+        return getattr(importlib.import_module(mod), fn)(args.rest)
+
+    p.set_defaults(func=run)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -190,15 +198,42 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--max-geodesic", type=float, default=12.0)
     e.set_defaults(func=cmd_episodes)
 
-    c = sub.add_parser(
-        "compare", help="compare two episodes.jsonl files (regression gate)", add_help=False
+    _passthrough(
+        sub,
+        "compare",
+        "compare two episodes.jsonl files (regression gate)",
+        "simn_sim.experiments.compare:main",
     )
-    c.add_argument("rest", nargs=argparse.REMAINDER)
-    c.set_defaults(func=cmd_compare)
+    _passthrough(
+        sub,
+        "batch",
+        "run a batch of episodes (local process pool or Ray)",
+        "simn_sim.experiments.batch:batch_main",
+    )
+    _passthrough(
+        sub, "record", "record a TUM RGB-D sequence from the env", "simn_sim.slam.cli:record_main"
+    )
+    _passthrough(
+        sub, "slam", "run the SIMN front-end on a TUM RGB-D folder", "simn_sim.slam.cli:slam_main"
+    )
     return p
 
 
+PASSTHROUGH = {
+    "compare": "simn_sim.experiments.compare:main",
+    "batch": "simn_sim.experiments.batch:batch_main",
+    "record": "simn_sim.slam.cli:record_main",
+    "slam": "simn_sim.slam.cli:slam_main",
+}
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in PASSTHROUGH:  # these parse their own arguments (incl. --help)
+        import importlib
+
+        mod, fn = PASSTHROUGH[argv[0]].split(":")
+        return int(getattr(importlib.import_module(mod), fn)(argv[1:]) or 0)
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

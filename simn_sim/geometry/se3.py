@@ -72,3 +72,13 @@ def pose_error(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     """Translation (m) and rotation (rad) difference between two poses."""
     D = inv_T(T_a) @ T_b
     return float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3])
+
+
+def orthonormalize(T: np.ndarray) -> np.ndarray:
+    """Project the rotation block of ``T`` back onto SO(3) (removes accumulated round-off)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return make_T(R, T[:3, 3])
