@@ -494,11 +494,17 @@ class SimnSlam:
             delta = se3_log(inv_T(T_pred) @ T_est)
             try:
                 info = np.linalg.inv(0.5 * (res.covariance + res.covariance.T))
-                # weak directions (eigenvalue below ``weak_ratio`` of the largest) carry a bias
-                # of the model's edges, not information: drop them, the prior decides there
-                ev, V = np.linalg.eigh(0.5 * (info + info.T))
-                ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
-                info = (V * ev) @ V.T
+                if res.eig_ratio < self.cfg.registration.degeneracy_ratio:
+                    # weakly constrained: directions whose information is below ``weak_ratio``
+                    # of the largest carry the bias of the model's edges rather than
+                    # information; drop them, the prior decides there. Rotations are scaled by
+                    # the median depth so both blocks are in metres.
+                    L = float(np.median(pts[:, 2])) if len(pts) else 1.0
+                    D = np.diag([L] * 3 + [1.0] * 3)
+                    Di = np.linalg.inv(D)
+                    ev, V = np.linalg.eigh(Di @ (0.5 * (info + info.T)) @ Di)
+                    ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
+                    info = D @ ((V * ev) @ V.T) @ D
                 fused = np.linalg.solve(info + prior_info, info @ delta)
                 T_est = _rigid(T_pred @ se3_exp(fused))
             except np.linalg.LinAlgError:
