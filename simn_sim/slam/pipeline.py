@@ -82,6 +82,7 @@ class SlamFrame:
     labels: np.ndarray
     obstacle_points_world: np.ndarray
     anchors_version: int
+    pixels: np.ndarray | None = None  # (N, 2) int (row, column) of each point in the image
     tracked_against: int | None = None  # local frame whose map was used (None: no map)
     inlier_rms: float = float("nan")
 
@@ -247,7 +248,9 @@ class SimnSlam:
             col = np.clip(col.astype(np.float32), 0, 1)
         else:
             col = np.full((len(pts), 3), 0.5, np.float32)
-        return {"points": pts, "normals": nrm, "colors": col, "depth": zz, "valid": ok}
+        rows, cols = np.nonzero(ok)
+        pix = np.stack([rows * s, cols * s], axis=1)
+        return {"points": pts, "normals": nrm, "colors": col, "depth": zz, "valid": ok, "pix": pix}
 
     def _track_points(self, pts: np.ndarray) -> np.ndarray:
         if len(pts) == 0:
@@ -461,6 +464,7 @@ class SimnSlam:
             labels=labels,
             obstacle_points_world=Pw[labels == OBSTACLE],
             anchors_version=self.anchors_version,
+            pixels=obs["pix"],
             tracked_against=against,
             inlier_rms=rms,
         )
