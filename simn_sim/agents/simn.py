@@ -33,7 +33,7 @@ import numpy as np
 from simn_sim.agents.base import register_agent
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics, backproject
-from simn_sim.geometry.se3 import inv_T, planar_T, transform_points, yaw_of
+from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
 from simn_sim.planning import (
     CollisionChecker,
     CollisionConfig,
@@ -51,7 +51,9 @@ from simn_sim.semantics import FLOOR, OBSTACLE
 @dataclasses.dataclass(frozen=True)
 class SimnAgentConfig(Config):
     planner: Literal["goal_vector", "uniform"] = "goal_vector"
-    pose_source: Literal["slam", "odometry"] = "slam"
+    # "odometry": the wheel-odometry pose (the default: real-time at 10 Hz on 2 CPU cores);
+    # "slam": SimnSlam tracking against the local frames' implicit maps + topological guidance
+    pose_source: Literal["slam", "odometry"] = "odometry"
     obstacle_stride: int = 4  # pixel stride of the points that feed the collision model
     obstacle_max_depth: float = 5.0  # farther points are noisier (D435i error grows with z^2)
     floor_tolerance: float = 0.06  # |z| below this is floor
@@ -67,6 +69,7 @@ class SimnAgentConfig(Config):
         0.9  # a scheduled replan replaces the path only if shorter than this x remaining
     )
     replan_every: int = 10  # control steps between scheduled replans
+    rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
     window: float = 6.0  # uniform RRT* samples the known map's box padded by this (m)
     slam: dict[str, Any] | None = None  # SlamConfig values (pose_source="slam")
     seed: int = 0
@@ -83,6 +86,7 @@ class SimnAgentConfig(Config):
             "must exceed floor_tolerance",
         )
         require(self.replan_every >= 1, n, "replan_every", "must be >= 1")
+        require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
         require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
 
@@ -156,6 +160,9 @@ class SimnAgent:
         self.plan_failures = 0
         self.fallback_plans = 0
         self.bumps = 0
+        self.track_failures = 0
+        self.revisits = 0
+        self._bump_points: list[np.ndarray] = []
         self._last_cmd = np.zeros(2)
         self._stuck_steps = 0
         self._state = "starting"
@@ -186,19 +193,29 @@ class SimnAgent:
         T_wc = T_world_cam_prior
         self._map_ms = self._track_ms = None
         if self.slam is not None:
-            fr = self.slam.process(
-                self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior
-            )
+            fr = self.slam.process(self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior)
             T_wc = fr.T_world_cam
             self._track_ms, self._map_ms = fr.track_ms, fr.map_ms
-            self._track_ok = bool(fr.tracking_success)
-            if self.slam.anchors_version != self._anchors_version:
-                # the pose graph moved local-frame anchors: rebuild the collision model from the maps
+            self.track_failures += int(not fr.success)
+            self.revisits += int(fr.revisit_accepted)
+            rebuild = self.slam.anchors_version != self._anchors_version or (
+                self.steps % self.cfg.rebuild_every == 0
+            )
+            if rebuild:
+                # anchors moved (pose graph) or periodic refresh: rebuild the collision model from
+                # the local frames' obstacle stores (which drop points seen through: no ghosts)
                 self._anchors_version = self.slam.anchors_version
                 self.checker.reset()
                 pts = self.slam.obstacle_points_world()
                 if len(pts):
                     self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+                if self._bump_points:
+                    bp = np.concatenate(self._bump_points)
+                    self.checker.update(bp, np.full(len(bp), OBSTACLE, np.int8))
+            elif len(fr.obstacle_points_world):
+                P = fr.obstacle_points_world
+                self.checker.update(P, np.full(len(P), OBSTACLE, np.int8))
+            return T_wc
         d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
         P = backproject(np.where(d <= self.cfg.obstacle_max_depth, d, 0.0), intr).reshape(-1, 3)
         P = P[P[:, 2] > 0]
@@ -315,6 +332,7 @@ class SimnAgent:
             r = self.cfg.collision.robot_radius + 0.03
             local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
             pts = transform_points(T, local)
+            self._bump_points.append(pts)
             self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
             self.path = None
 
@@ -353,7 +371,7 @@ class SimnAgent:
         self.steps += 1
         T_odom = self._odom_T(obs)
         self._detect_bump(inv_T(self.T_odom_prev) @ T_odom)
-        T_base_prior = self.T_base_est @ inv_T(self.T_odom_prev) @ T_odom
+        T_base_prior = orthonormalize(self.T_base_est @ inv_T(self.T_odom_prev) @ T_odom)
         self.T_odom_prev = T_odom
         T_wc = self._perceive(obs, T_base_prior @ self.T_base_cam)
         self.T_base_est = T_wc @ inv_T(self.T_base_cam)
