@@ -566,10 +566,21 @@ def _run_ray(
     started = False
     t0 = time.perf_counter()
     if not ray.is_initialized():
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+        try:
+            if address:
+                ray.init(address=address, log_to_driver=False)
+            else:
+                ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+        except Exception as e:  # noqa: BLE001 - ConnectionError, AuthenticationError, ...
+            hint = (
+                "; a cluster started with token authentication (the default of recent Ray) "
+                "needs RAY_AUTH_MODE=token and its token (~/.ray/auth_token or RAY_AUTH_TOKEN) "
+                "on the driver"
+                if address
+                else ""
+            )
+            where = f"join the Ray cluster at {address}" if address else "start a local Ray"
+            raise BatchError(f"cannot {where}: {type(e).__name__}: {e}{hint}") from e
         started = True
     info = {
         "ray_version": ray.__version__,
