@@ -570,7 +570,12 @@ def _run_ray(
             if address:
                 ray.init(address=address, log_to_driver=False)
             else:
-                ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+                ray.init(
+                    address="local",
+                    num_cpus=max(1, workers),
+                    include_dashboard=False,
+                    log_to_driver=False,
+                )
         except Exception as e:  # noqa: BLE001 - ConnectionError, AuthenticationError, ...
             hint = (
                 "; a cluster started with token authentication (the default of recent Ray) "
