@@ -81,3 +81,17 @@ def test_mesh_of_the_zero_level_set_lies_on_the_true_surfaces(trained):
     assert len(mesh.faces) > 1000 and mesh.vertices.dtype == np.float32
     d = np.abs(SCENE.sdf(mesh.vertices))
     assert np.median(d) < 0.01 and np.quantile(d, 0.9) < 0.03
+
+
+def test_mesh_logs_to_rerun(trained):
+    rr = pytest.importorskip("rerun")
+    from simn_sim.mapping import log_mesh
+
+    m, _, _, _ = trained
+    mesh = m.extract_mesh(resolution=0.08)
+    rec = rr.RecordingStream("simn-sim-test-mapping")
+    with rec:
+        mem = rec.memory_recording()
+        log_mesh("map/mesh", mesh)
+        rec.flush()
+    assert len(mesh.faces) > 0 and len(mem.drain_as_bytes()) > 1000

@@ -151,9 +151,11 @@ class ImplicitMap:
         self.generator = generator
         self.points = NeuralPointMap(self.cfg.points, self.device, generator)
         if decoder is None:
-            decoder = Decoder(self.cfg.decoder, self.cfg.points.feature_dim, generator).to(
-                self.device
-            )
+            # the decoder is initialised on the CPU, so it needs a CPU generator
+            gen = generator
+            if generator.device.type != "cpu":
+                gen = torch.Generator().manual_seed(self.cfg.seed)
+            decoder = Decoder(self.cfg.decoder, self.cfg.points.feature_dim, gen).to(self.device)
         elif decoder.feature_dim != self.cfg.points.feature_dim:
             raise ValueError(
                 f"decoder takes features of dim {decoder.feature_dim}, map has {self.cfg.points.feature_dim}"
