@@ -148,8 +148,14 @@ class SimnAgent:
         self.intr: Intrinsics = cam.intrinsics
         self.T_base_cam = np.asarray(cam.T_base_cam, float)
         self.rng = np.random.default_rng(self.cfg.seed)
+        # planning checker (robot radius + margin) and a tighter safety checker (radius + 3 cm):
+        # the follower's blocked check and the recovery trigger use the safety one, so a path that
+        # grazes the planning margin does not make the robot dither at the margin's edge
         self.checker = CollisionChecker(self.cfg.collision)
-        self.follower = PathFollower(self.follower_cfg, self.checker)
+        self.safety = CollisionChecker(
+            self.cfg.collision.replace(margin=min(0.03, self.cfg.collision.margin))
+        )
+        self.follower = PathFollower(self.follower_cfg, self.safety)
         self.goal = np.asarray(obs["goal"], float)
         self.T_odom_prev = self._odom_T(obs)
         self.T_base_est = self.T_odom_prev.copy()
@@ -193,7 +199,9 @@ class SimnAgent:
         T_wc = T_world_cam_prior
         self._map_ms = self._track_ms = None
         if self.slam is not None:
-            fr = self.slam.process(self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior)
+            fr = self.slam.process(
+                self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior
+            )
             T_wc = fr.T_world_cam
             self._track_ms, self._map_ms = fr.track_ms, fr.map_ms
             self.track_failures += int(not fr.success)
@@ -206,15 +214,14 @@ class SimnAgent:
                 # the local frames' obstacle stores (which drop points seen through: no ghosts)
                 self._anchors_version = self.slam.anchors_version
                 self.checker.reset()
+                self.safety.reset()
                 pts = self.slam.obstacle_points_world()
-                if len(pts):
-                    self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
                 if self._bump_points:
-                    bp = np.concatenate(self._bump_points)
-                    self.checker.update(bp, np.full(len(bp), OBSTACLE, np.int8))
-            elif len(fr.obstacle_points_world):
+                    pts = np.concatenate([pts, *self._bump_points])
+                self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
+            else:
                 P = fr.obstacle_points_world
-                self.checker.update(P, np.full(len(P), OBSTACLE, np.int8))
+                self._update_maps(P, np.full(len(P), OBSTACLE, np.int8))
             return T_wc
         d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
         P = backproject(np.where(d <= self.cfg.obstacle_max_depth, d, 0.0), intr).reshape(-1, 3)
@@ -222,10 +229,15 @@ class SimnAgent:
         if len(P):
             Pw = transform_points(T_wc, P.astype(np.float64))
             lab = label_points_world(Pw, self.cfg.floor_tolerance, self.cfg.robot_height)
-            self.checker.update(Pw, lab)
+            self._update_maps(Pw, lab)
         if self.slam is None:
             self._map_ms = (time.perf_counter() - t0) * 1e3
         return T_wc
+
+    def _update_maps(self, points: np.ndarray, labels: np.ndarray) -> None:
+        if len(points):
+            self.checker.update(points, labels)
+            self.safety.update(points, labels)
 
     # ---- planning ----------------------------------------------------------------------------
     def _subgoal(self, xy: np.ndarray) -> np.ndarray:
@@ -333,7 +345,7 @@ class SimnAgent:
             local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
             pts = transform_points(T, local)
             self._bump_points.append(pts)
-            self.checker.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+            self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
             self.path = None
 
     def _drive_to(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -378,13 +390,13 @@ class SimnAgent:
         pose = np.array([self.T_base_est[0, 3], self.T_base_est[1, 3], yaw_of(self.T_base_est)])
         xy = pose[:2]
         self._plan_ms = None
-        if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.02:
+        if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
             self.path = None
             return self._escape(pose)
-        if not self.checker.is_free(xy[None])[0]:
+        if not self.safety.is_free(xy[None])[0]:
             # inside the safety margin (the map grew around the robot): back out to the nearest
-            # free point before planning again
+            # point free under the planning margin before planning again
             self._state = "recovering"
             self.path = None
             target = self._nearest_free(xy, radius=0.6)
