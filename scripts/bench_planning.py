@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import math
 import os
 import platform
 import types
@@ -33,8 +32,8 @@ from simn_sim.env.episodes import EpisodeSet
 from simn_sim.geometry.camera import backproject
 from simn_sim.geometry.freespace import FreeSpace2D
 from simn_sim.geometry.se3 import transform_points
-from simn_sim.planning import CollisionChecker, CollisionConfig, GoalVectorConfig, RRTStarConfig
 from simn_sim.paths import envs_dir
+from simn_sim.planning import CollisionChecker, CollisionConfig, GoalVectorConfig, RRTStarConfig
 
 HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location("bps", HERE / "bench_planning_synthetic.py")
@@ -143,7 +142,6 @@ def main() -> None:
     print(json.dumps(out, indent=1))
     if args.out:
         Path(args.out).write_text(json.dumps({**out, "rows": rows}, indent=1, default=float))
-    del math
 
 
 if __name__ == "__main__":
