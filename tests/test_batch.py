@@ -270,3 +270,20 @@ def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
     assert err is not None and "worker process died" in err and "alone 2 times" in err
     for e in ("a", "b", "c"):  # innocent bystanders of a dying worker still get a clean record
         assert got[e][0]["error"] is None
+
+
+def test_same_episode_id_with_another_spec_is_refused(tmp_path: Path) -> None:
+    spec = EpisodeSet.load(regression_episode_file()).episodes[0]
+    out = tmp_path / "run"
+    out.mkdir()
+    moved = EpisodeSpec(spec.episode_id, spec.layout_seed, spec.start, (1.0, 1.0), spec.seed)
+    EpisodeSet("SimnOffice-v0", [moved]).save(out / "episode_set.json")
+    (out / "episodes.jsonl").write_text(
+        json.dumps({"episode_id": spec.episode_id, "agent": "oracle", "error": "x"}) + "\n"
+    )
+    f = tmp_path / "eps.json"
+    EpisodeSet("SimnOffice-v0", [spec]).save(f)
+    cfg = BatchConfig(out=out, agent="oracle", episode_file=f, workers=0, progress=False)
+    with pytest.raises(BatchError, match="different spec"):
+        run_batch(cfg)
+    assert "error" in (out / "episodes.jsonl").read_text()  # nothing changed

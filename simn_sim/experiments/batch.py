@@ -300,6 +300,13 @@ class BatchConfig:
             raise BatchError("--backend ray needs --workers >= 1 (or --ray-address)")
         if self.threads_per_worker < 1:
             raise BatchError(f"--threads-per-worker must be >= 1, got {self.threads_per_worker}")
+        if self.backend == "ray":
+            import importlib.util
+
+            if importlib.util.find_spec("ray") is None:
+                raise BatchError(
+                    "--backend ray needs Ray: pip install 'simn-sim[ray]' (or 'ray[default]')"
+                )
 
 
 def resolve_env_config(env_id: str, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -700,9 +707,9 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
         for r in existing
         if not (r["agent"] == cfg.agent and r["episode_id"] in ids and r["episode_id"] not in done)
     ]
+    _check_and_merge_episode_set(out, env_id, episodes)  # refuses before anything changes
     if dropped or len(keep) != len(existing):
         _write_records(rec_path, keep)  # errored (or half-written) records run again
-    _check_and_merge_episode_set(out, env_id, episodes)
 
     conf = {
         "env_id": env_id,
