@@ -55,7 +55,8 @@ def config_hash(env_cfg: dict[str, Any], agent: str, agent_cfg: dict[str, Any]) 
 
 
 def _ate_rmse(true_xy: list[np.ndarray], est_xy: list[np.ndarray]) -> float | None:
-    """RMSE of the estimated planar positions (no alignment: both start in the same frame)."""
+    """RMSE of the estimated planar positions, both in the world frame (no alignment: the
+    estimate, in the agent's start frame, is mapped through the true start pose)."""
     if not est_xy or len(est_xy) != len(true_xy):
         return None
     d = np.asarray(true_xy) - np.asarray(est_xy)
@@ -131,8 +132,8 @@ def run_episode(
             step += 1
             true_xy.append(info["T_world_base"][:2, 3].copy())
             T_est = agent.debug().get("T_world_base_est")
-            if T_est is not None:
-                est_xy.append(np.asarray(T_est)[:2, 3].copy())
+            if T_est is not None:  # the agent's own frame is the episode start frame
+                est_xy.append((T_ws @ np.asarray(T_est, float))[:2, 3].copy())
             recorder.log_step(step, obs, info, agent.debug())
             if progress is not None:
                 progress.update(1)
@@ -146,7 +147,6 @@ def run_episode(
         rec["plan_ms_p95"] = float(np.percentile(plan_ms, 95)) if plan_ms else None
         rec["map_ms_median"] = float(np.median(map_ms)) if map_ms else None
         rec["control_ms_median"] = float(np.median(ctl_ms)) if ctl_ms else None
-        del T_ws
         rec["ate_rmse_m"] = _ate_rmse(true_xy, est_xy)
         agent_state = getattr(agent, "state", None)
         if callable(agent_state):
