@@ -34,11 +34,11 @@ class RaySamples:
 
 def perpendicular_basis(u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Two unit vectors (N, 3) orthogonal to the unit vectors ``u`` (N, 3) and to each other."""
-    helper = torch.zeros_like(u)
-    use_x = u[:, 0].abs() < 0.9
-    helper[use_x, 0] = 1.0
-    helper[~use_x, 1] = 1.0
-    a = torch.linalg.cross(u, helper)
+    ux, uy, uz = u.unbind(1)
+    # a = u x e_x where u is far from e_x, else u x e_y (explicit cross products)
+    use_x = (ux.abs() < 0.9)[:, None]
+    zero = torch.zeros_like(ux)
+    a = torch.where(use_x, torch.stack([zero, uz, -uy], 1), torch.stack([-uz, zero, ux], 1))
     a = a / a.norm(dim=1, keepdim=True)
     b = torch.linalg.cross(u, a)
     return a, b
@@ -53,43 +53,42 @@ def sample_rays(
     """Samples around each surface point; see the module docstring.
 
     points: (N, 3) float32 surface points; origin: (3,) camera centre, same frame.
-    Returns ``N * (n_surface + n_front + n_behind)`` samples grouped by kind.
+    Returns ``N * (n_surface + n_front + n_behind)`` samples, ray by ray: for each point its
+    surface, then front, then behind samples.
     """
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must be (N, 3), got {tuple(points.shape)}")
     dev, dt = points.device, points.dtype
     n = points.shape[0]
+    ns, nf, nb = cfg.n_surface, cfg.n_front, cfg.n_behind
+    per = ns + nf + nb
     e = origin.to(device=dev, dtype=dt).reshape(1, 3)
     d = points - e
     dist = d.norm(dim=1, keepdim=True)  # (N, 1)
-
-    def uniform(m: int, lo: float, hi: float) -> torch.Tensor:
-        return lo + (hi - lo) * torch.rand((n, m), generator=generator, device=dev, dtype=dt)
-
-    out_p, out_s, out_k, out_r = [], [], [], []
-    idx = torch.arange(n, device=dev)
-
-    def emit(p: torch.Tensor, s: torch.Tensor, kind: int) -> None:
-        m = p.shape[1]
-        out_p.append(p.reshape(-1, 3))
-        out_s.append(s.reshape(-1))
-        out_k.append(torch.full((n * m,), kind, dtype=torch.int8, device=dev))
-        out_r.append(idx.repeat_interleave(m))
-
-    if cfg.n_surface > 0:
-        u = d / dist
-        a, b = perpendicular_basis(u)
-        rho = cfg.surface_radius * torch.sqrt(uniform(cfg.n_surface, 0.0, 1.0))
-        phi = uniform(cfg.n_surface, 0.0, 2.0 * torch.pi)
-        off = (rho * torch.cos(phi))[..., None] * a[:, None] + (rho * torch.sin(phi))[
-            ..., None
-        ] * b[:, None]
-        emit(points[:, None] + off, torch.zeros((n, cfg.n_surface), device=dev, dtype=dt), SURFACE)
-    if cfg.n_front > 0:
+    # one draw for everything: ns radii + ns angles + nf + nb ray parameters per point
+    r = torch.rand((n, 2 * ns + nf + nb), generator=generator, device=dev, dtype=dt)
+    out = torch.empty((n, per, 3), device=dev, dtype=dt)
+    lab = torch.zeros((n, per), device=dev, dtype=dt)
+    if ns > 0:
+        a, b = perpendicular_basis(d / dist)
+        rho = cfg.surface_radius * torch.sqrt(r[:, :ns])
+        phi = (2.0 * torch.pi) * r[:, ns : 2 * ns]
+        out[:, :ns] = (
+            points[:, None]
+            + (rho * torch.cos(phi))[..., None] * a[:, None]
+            + (rho * torch.sin(phi))[..., None] * b[:, None]
+        )
+    if nf + nb > 0:
         lo, hi = cfg.front_range
-        lam = uniform(cfg.n_front, lo, hi)
-        emit(e + lam[..., None] * d[:, None], (1.0 - lam) * dist, FRONT)
-    if cfg.n_behind > 0:
-        lam = uniform(cfg.n_behind, 1.0 + cfg.behind_min, 1.0 + cfg.behind_max)
-        emit(e + lam[..., None] * d[:, None], (1.0 - lam) * dist, BEHIND)
-    return RaySamples(torch.cat(out_p), torch.cat(out_s), torch.cat(out_k), torch.cat(out_r))
+        blo, bhi = 1.0 + cfg.behind_min, 1.0 + cfg.behind_max
+        lam = r[:, 2 * ns :]
+        if nf:
+            lam[:, :nf] = lo + (hi - lo) * lam[:, :nf]
+        if nb:
+            lam[:, nf:] = blo + (bhi - blo) * lam[:, nf:]
+        out[:, ns:] = e + lam[..., None] * d[:, None]
+        lab[:, ns:] = (1.0 - lam) * dist
+    kinds = [SURFACE] * ns + [FRONT] * nf + [BEHIND] * nb
+    kind = torch.tensor(kinds, dtype=torch.int8, device=dev).repeat(n)
+    ray = torch.arange(n, device=dev).repeat_interleave(per)
+    return RaySamples(out.reshape(-1, 3), lab.reshape(-1), kind, ray)
