@@ -37,6 +37,7 @@ import dataclasses
 import time
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 
@@ -90,7 +91,8 @@ class SlamFrame:
 class _VoxelStore:
     """Points on a voxel grid, one per voxel, anchor coordinates, with optional (N, k) extra
     attributes (normals). ``keep="latest"`` replaces a voxel's point by a newer one (obstacles:
-    the world may change); ``keep="first"`` keeps the first (a stable tracking model)."""
+    the world may change); ``keep="first"`` keeps the first; ``keep="mean"`` averages all
+    observations of the voxel (points and extras; a noise-averaged tracking model)."""
 
     def __init__(self, voxel: float, keep: str = "latest", extra_dim: int = 0) -> None:
         self.voxel = float(voxel)
@@ -98,6 +100,7 @@ class _VoxelStore:
         self.keys = np.zeros(0, np.int64)
         self.points = np.zeros((0, 3), np.float32)
         self.extra = np.zeros((0, extra_dim), np.float32)
+        self.count = np.zeros(0, np.float32)
 
     def _key(self, p: np.ndarray) -> np.ndarray:
         g = np.floor(p / self.voxel).astype(np.int64) + (1 << 20)
@@ -108,16 +111,38 @@ class _VoxelStore:
             return
         p = np.asarray(p, np.float32)
         e = np.zeros((len(p), self.extra.shape[1]), np.float32) if extra is None else extra
-        new = (self._key(p), p, np.asarray(e, np.float32))
+        e = np.asarray(e, np.float32)
+        kn = self._key(p)
+        if self.keep == "mean":
+            keys = np.concatenate([self.keys, kn])
+            w = np.concatenate([self.count, np.ones(len(p), np.float32)])
+            P = np.concatenate([self.points * self.count[:, None], p])
+            E = np.concatenate([self.extra * self.count[:, None], e])
+            self.keys, inv = np.unique(keys, return_inverse=True)
+            inv = inv.reshape(-1)
+            m = len(self.keys)
+            self.count = np.bincount(inv, w, minlength=m).astype(np.float32)
+
+            def mean(a: np.ndarray) -> np.ndarray:
+                cols = [np.bincount(inv, a[:, j], minlength=m) for j in range(a.shape[1])]
+                return (np.stack(cols, 1) / self.count[:, None]).astype(np.float32)
+
+            self.points = mean(P)
+            self.extra = mean(E) if E.shape[1] else np.zeros((m, 0), np.float32)
+            return
+        new = (kn, p, e)
         old = (self.keys, self.points, self.extra)
         a, b = (new, old) if self.keep == "latest" else (old, new)  # np.unique keeps the first
         keys = np.concatenate([a[0], b[0]])
         self.keys, idx = np.unique(keys, return_index=True)
         self.points = np.concatenate([a[1], b[1]])[idx]
         self.extra = np.concatenate([a[2], b[2]])[idx]
+        self.count = np.ones(len(self.keys), np.float32)
 
     def remove(self, mask: np.ndarray) -> None:
-        self.keys, self.points, self.extra = self.keys[~mask], self.points[~mask], self.extra[~mask]
+        keep = ~mask
+        self.keys, self.points, self.extra = self.keys[keep], self.points[keep], self.extra[keep]
+        self.count = self.count[keep]
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -236,7 +261,16 @@ class SimnSlam:
         ok = np.isfinite(z) & (z >= self.cfg.min_depth) & (z <= self.cfg.max_depth)
         zz = np.where(ok, z, 0.0).astype(np.float32)
         P = np.stack([self._ray_x * zz, self._ray_y * zz, zz], axis=2)
-        N = normals_from_organized(np.where(ok[..., None], P, np.nan))
+        if self.cfg.normal_smooth_px > 0:
+            # normals from a normalised-convolution box blur of the depth (noisy stereo depth
+            # gives useless central-difference normals); points keep the raw depth
+            k = 2 * self.cfg.normal_smooth_px + 1
+            wsum = cv2.blur(ok.astype(np.float32), (k, k))
+            zs = cv2.blur(zz, (k, k)) / np.maximum(wsum, 1e-6)
+            Ps = np.stack([self._ray_x * zs, self._ray_y * zs, zs], axis=2)
+            N = normals_from_organized(np.where(ok[..., None], Ps, np.nan))
+        else:
+            N = normals_from_organized(np.where(ok[..., None], P, np.nan))
         pts = P[ok]
         nrm = N[ok].astype(np.float32)
         if rgb is not None:
@@ -253,6 +287,7 @@ class SimnSlam:
         return {"points": pts, "normals": nrm, "colors": col, "depth": zz, "valid": ok, "pix": pix}
 
     def _track_points(self, pts: np.ndarray) -> np.ndarray:
+        pts = pts[pts[:, 2] <= self.cfg.track_max_depth]
         if len(pts) == 0:
             return pts
         tp, _, _ = voxel_downsample(pts, self.cfg.track_voxel)
@@ -275,7 +310,7 @@ class SimnSlam:
 
     def _open_frame(self, T_world_cam: np.ndarray, t: float) -> int:
         fid = len(self._states)
-        surface = _VoxelStore(self.cfg.surface_voxel, keep="first", extra_dim=3)
+        surface = _VoxelStore(self.cfg.surface_voxel, keep=self.cfg.surface_keep, extra_dim=3)
         frame = LocalFrame(fid, T_world_cam.copy(), self._new_map(surface), t_start=t, t_end=t)
         self._states[fid] = _FrameState(
             frame,
