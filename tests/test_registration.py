@@ -197,7 +197,7 @@ def test_bad_input(points: np.ndarray) -> None:
         RegistrationConfig.from_dict({"lamda_reg": 1e-3})
 
 
-TUM = "/work/shared/data/tum_fr1_desk_9"
+TUM = str(__import__("pathlib").Path(__file__).parent / "data" / "tum_fr1_desk_9")
 
 
 @pytest.mark.skipif(not __import__("os").path.isdir(TUM), reason="shared TUM sample not present")

@@ -14,7 +14,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from simn_sim.eval.trajectory import read_tum_trajectory  # noqa: E402
 from simn_sim.slam.cli import record_main, slam_main  # noqa: E402
 
-TUM9 = Path("/work/shared/data/tum_fr1_desk_9")
+TUM9 = Path(__file__).parent / "data" / "tum_fr1_desk_9"
 
 
 @pytest.fixture(scope="module")

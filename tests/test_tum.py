@@ -13,7 +13,7 @@ from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import pose_error, se3_exp
 from simn_sim.io.tum import TumFormatError, TumWriter, associate, load_camera, read_tum
 
-REAL = Path("/work/shared/data/tum_fr1_desk_9")
+REAL = Path(__file__).parent / "data" / "tum_fr1_desk_9"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="shared TUM sample not present")
 
 
