@@ -37,6 +37,10 @@ class NullRecorder:
     def log_step(self, step: int, obs: dict, info: dict, agent_debug: dict | None = None) -> None:
         pass
 
+    def set_agent_frame(self, T_world_agent: np.ndarray) -> None:
+        """Pose of the agent's own frame (its start frame) in the world, for drawing what an
+        agent reports with ``debug()["frame"] == "start"`` over the true world."""
+
     def close(self) -> None:
         pass
 
@@ -57,6 +61,7 @@ class RerunRecorder(NullRecorder):
         self.intr = intrinsics
         self.image_every = max(1, int(image_every))
         self._true: list[np.ndarray] = []
+        self._T_wa = np.eye(4)
         self._est: list[np.ndarray] = []
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
@@ -72,6 +77,20 @@ class RerunRecorder(NullRecorder):
             static=True,
         )
 
+    def set_agent_frame(self, T_world_agent: np.ndarray) -> None:
+        self._T_wa = np.asarray(T_world_agent, float).copy()
+
+    def _to_world(self, pts: np.ndarray, dbg: dict) -> np.ndarray:
+        """(N, 2|3) agent-frame points -> world (3-D; 2-D points get z = 0)."""
+        pts = np.asarray(pts, float)
+        if dbg.get("frame") != "start":
+            return pts
+        flat = pts.reshape(-1, pts.shape[-1])
+        if flat.shape[1] == 2:
+            flat = np.c_[flat, np.zeros(len(flat))]
+        out = flat @ self._T_wa[:3, :3].T + self._T_wa[:3, 3]
+        return out.reshape(*pts.shape[:-1], 3)
+
     def log_step(self, step: int, obs: dict, info: dict, agent_debug: dict | None = None) -> None:
         rr = self.rr
         rec = self.rec
@@ -86,7 +105,10 @@ class RerunRecorder(NullRecorder):
         )
         dbg = agent_debug or {}
         if dbg.get("T_world_base_est") is not None:
-            self._est.append(np.asarray(dbg["T_world_base_est"])[:3, 3].copy())
+            T_est = np.asarray(dbg["T_world_base_est"], float)
+            if dbg.get("frame") == "start":
+                T_est = self._T_wa @ T_est
+            self._est.append(T_est[:3, 3].copy())
             rec.log(
                 "world/trajectory/estimated",
                 rr.LineStrips3D([np.array(self._est)], colors=[[255, 120, 40]]),
@@ -107,6 +129,7 @@ class RerunRecorder(NullRecorder):
             rec.log("world/camera/image/depth", rr.DepthImage(obs["depth"], meter=1.0))
         for k, pts in (dbg.get("local_frames") or {}).items():
             p, lab = pts
+            p = self._to_world(p, dbg)
             rec.log(
                 f"world/local_frames/{k}/points",
                 rr.Points3D(
@@ -114,7 +137,7 @@ class RerunRecorder(NullRecorder):
                 ),
             )
         if dbg.get("topo_nodes") is not None:
-            nodes = np.asarray(dbg["topo_nodes"], float).reshape(-1, 3)
+            nodes = self._to_world(np.asarray(dbg["topo_nodes"], float).reshape(-1, 3), dbg)
             rec.log("world/topo/nodes", rr.Points3D(nodes, colors=[[255, 0, 255]], radii=[0.12]))
             arcs = dbg.get("topo_arcs") or []
             if arcs:
@@ -126,11 +149,13 @@ class RerunRecorder(NullRecorder):
             edges = np.asarray(dbg["tree_edges"], float)  # (E, 2, 2) or (E, 2, 3)
             if edges.shape[-1] == 2:
                 edges = np.concatenate([edges, np.full((*edges.shape[:2], 1), 0.02)], -1)
+            edges = self._to_world(edges, dbg)
             rec.log("world/planner/tree", rr.LineStrips3D(list(edges), colors=[[160, 160, 160]]))
         if dbg.get("path") is not None and len(dbg["path"]):
             path = np.asarray(dbg["path"], float)
             if path.shape[1] == 2:
                 path = np.c_[path, np.full(len(path), 0.04)]
+            path = self._to_world(path, dbg)
             rec.log("world/planner/path", rr.LineStrips3D([path], colors=[[0, 220, 120]]))
         for key in ("plan_ms", "map_ms", "track_ms"):
             if dbg.get(key) is not None:

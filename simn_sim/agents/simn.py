@@ -434,6 +434,7 @@ class SimnAgent:
 
     def debug(self) -> dict[str, Any]:
         d: dict[str, Any] = {
+            "frame": "start",  # everything below is in the agent's own (episode start) frame
             "T_world_base_est": getattr(self, "T_base_est", None),
             "path": self.path,
             "tree_edges": self.tree_edges,

@@ -117,6 +117,7 @@ def run_episode(
         map_ms: list[float] = []
         ctl_ms: list[float] = []
         T_ws = info["T_world_base"].copy()
+        recorder.set_agent_frame(T_ws)  # drawing only: agents report in their start frame
         step = 0
         recorder.log_step(step, obs, info, agent.debug())
         while True:
