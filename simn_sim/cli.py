@@ -87,6 +87,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             rerun_path=rrd,
             progress=bar,
             env=env,
+            image_every=args.image_every,
         )
     env.close()
     write_json(out / "config.json", resolved)
@@ -179,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--max-episode-steps", dest="max_episode_steps", type=int)
     d.add_argument("--noise", choices=["none", "d435i"])
     d.add_argument("--no-rerun", action="store_true")
+    d.add_argument("--image-every", type=int, default=2, help="log camera images every n-th step")
     d.set_defaults(func=cmd_demo)
 
     e = sub.add_parser("episodes", help="sample a fixed, seeded episode set")

@@ -46,7 +46,8 @@ class NullRecorder:
 
 
 class RerunRecorder(NullRecorder):
-    """Writes one ``.rrd`` file. ``image_every``: log camera images every n-th step (size)."""
+    """Writes one ``.rrd`` file. RGB is stored as JPEG (quality 85); ``image_every``: log the
+    camera images every n-th step only (recording size)."""
 
     def __init__(
         self, path: str | Path, intrinsics, application_id: str = "simn_sim", image_every: int = 1
@@ -125,8 +126,9 @@ class RerunRecorder(NullRecorder):
                     camera_xyz=rr.ViewCoordinates.RDF,
                 ),
             )
-            rec.log("world/camera/image/rgb", rr.Image(obs["rgb"]))
-            rec.log("world/camera/image/depth", rr.DepthImage(obs["depth"], meter=1.0))
+            rec.log("world/camera/image/rgb", rr.Image(obs["rgb"]).compress(jpeg_quality=85))
+            depth_mm = np.round(np.clip(obs["depth"], 0.0, 65.0) * 1000.0).astype(np.uint16)
+            rec.log("world/camera/image/depth", rr.DepthImage(depth_mm, meter=1000.0))
         for k, pts in (dbg.get("local_frames") or {}).items():
             p, lab = pts
             p = self._to_world(p, dbg)

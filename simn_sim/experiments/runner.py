@@ -73,6 +73,7 @@ def run_episode(
     rerun_path: str | Path | None = None,
     progress: Any = None,
     env: gym.Env | None = None,
+    image_every: int = 1,
 ) -> dict[str, Any]:
     """Run one episode; returns the record (see :data:`RECORD_FIELDS`).
 
@@ -107,7 +108,9 @@ def run_episode(
         )
         agent = make_agent(agent_name, env.unwrapped, agent_cfg)
         agent.reset(obs, info)
-        recorder = make_recorder(rerun_path, env.unwrapped.camera_info.intrinsics)
+        recorder = make_recorder(
+            rerun_path, env.unwrapped.camera_info.intrinsics, image_every=image_every
+        )
         recorder.log_layout(
             env.unwrapped.layout.footprints((0.03, 0.95)), np.asarray(info["episode_spec"]["goal"])
         )
