@@ -114,3 +114,43 @@ def test_implicit_map_path_runs(desk):
     assert len(fp.positions) > 100
     assert outs[1].tracked_against == 0
     assert all(np.isfinite(o.T_world_cam).all() for o in outs)
+
+
+def _synthetic_view(box: bool):
+    """160x120 depth: a wall 3 m ahead, optionally a box face 1.5 m ahead in the centre."""
+    depth = np.full((120, 160), 3.0, np.float32)
+    if box:
+        depth[40:80, 60:100] = 1.5
+    rgb = np.full((120, 160, 3), 128, np.uint8)
+    return rgb, depth
+
+
+def test_free_space_carving_removes_stale_obstacles():
+    from simn_sim.geometry.camera import Intrinsics
+
+    intr = Intrinsics(160, 120, 150.0, 150.0, 79.5, 59.5)
+    T_base_cam = np.eye(4)
+    T_base_cam[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical z = base x (forward)
+    T_base_cam[2, 3] = 0.5
+    for carve in (True, False):
+        slam = SimnSlam(SlamConfig(map_kind="points", carve=carve), intr, T_base_cam)
+        prior = T_base_cam.copy()  # the robot stands still
+        slam.process(0.0, *_synthetic_view(True), prior)
+        near = np.linalg.norm(slam.obstacle_points_world()[:, :2], axis=1) < 2.0
+        assert near.sum() > 20  # the box face is an obstacle
+        slam.process(0.1, *_synthetic_view(False), prior)  # it has gone: seen through
+        near = np.linalg.norm(slam.obstacle_points_world()[:, :2], axis=1) < 2.0
+        if carve:
+            assert near.sum() == 0
+        else:
+            assert near.sum() > 20
+        # the wall behind stays
+        assert (np.linalg.norm(slam.obstacle_points_world()[:, :2], axis=1) > 2.5).sum() > 20
+
+
+def test_agent_preset_runs_cheaply(desk):
+    cfg = SlamConfig.for_agent()
+    assert cfg.map_kind == "points" and cfg.max_track_points <= 2500
+    slam, outs, gt = _run(desk, cfg, n=10)
+    assert all(o.success for o in outs[1:])
+    assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01
