@@ -49,7 +49,7 @@ def bench(width: int, height: int, steps: int, noise: str) -> dict:
     env.reset(seed=0)
     actions = [np.array([0.3, 0.4 * math.sin(i / 7)], np.float32) for i in range(steps + 1)]
     it = iter(actions)
-    env_rate = _rate(lambda: env.step(next(it)), steps)
+    env_rate = _rate(lambda: env.step(next(it)), min(steps, len(actions) - 1))
 
     m, d = u.model, mujoco.MjData(u.model)
     d.qpos[:] = u.data.qpos
@@ -78,15 +78,25 @@ def bench(width: int, height: int, steps: int, noise: str) -> dict:
         r.render()
         r.disable_depth_rendering()
 
+    # interleaved rounds, so that load changes on a shared machine hit both sides alike;
+    # ratios are medians over rounds
+    rounds = 5
+    n = max(10, steps // rounds)
+    env_r, bare_r, rend_r = [env_rate], [], []
+    for _ in range(rounds):
+        env_r.append(_rate(lambda: env.step(actions[0]), n))
+        bare_r.append(_rate(bare_1pass, n))
+        rend_r.append(_rate(bare_renderer, n))
+    env_r = env_r[1:]
     out = {
         "resolution": f"{width}x{height}",
-        "env_steps_per_s": env_rate,
-        "bare_1pass_steps_per_s": _rate(bare_1pass, steps),
-        "bare_renderer_steps_per_s": _rate(bare_renderer, steps),
+        "env_steps_per_s": float(np.median(env_r)),
+        "bare_1pass_steps_per_s": float(np.median(bare_r)),
+        "bare_renderer_steps_per_s": float(np.median(rend_r)),
         "physics_only_steps_per_s": _rate(physics, steps * 5),
+        "env_overhead_vs_1pass": float(np.median(np.array(bare_r) / np.array(env_r))),
+        "env_speedup_vs_renderer": float(np.median(np.array(env_r) / np.array(rend_r))),
     }
-    out["env_overhead_vs_1pass"] = out["bare_1pass_steps_per_s"] / out["env_steps_per_s"]
-    out["env_speedup_vs_renderer"] = out["env_steps_per_s"] / out["bare_renderer_steps_per_s"]
     r.close()
     cam.close()
     env.close()
