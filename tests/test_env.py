@@ -295,3 +295,12 @@ def test_render_modes():
     rgb, depth = e.render()
     np.testing.assert_array_equal(depth, obs["depth"])
     e.close()
+
+
+def test_agent_registry_lists_builtin_agents_and_rejects_unknown(env):
+    import simn_sim.agents.simn  # noqa: F401  (importing one agent module first must not hide others)
+    from simn_sim.agents import agent_names, make_agent
+
+    assert {"oracle", "simn", "rrtstar"} <= set(agent_names())
+    with pytest.raises(ValueError, match="unknown agent 'nope'"):
+        make_agent("nope", env.unwrapped)

@@ -49,11 +49,5 @@ def make_agent(name: str, env: Any, config: dict[str, Any] | None = None) -> Age
 
 
 def _load_builtin() -> None:
-    if _REGISTRY:
-        return
-    from simn_sim.agents import oracle  # noqa: F401
-
-    try:  # the SIMN and RRT* agents need the mapping stack
-        from simn_sim.agents import simn  # noqa: F401
-    except ImportError:
-        pass
+    """Import the built-in agent modules (each registers itself; imports are idempotent)."""
+    from simn_sim.agents import oracle, simn  # noqa: F401
