@@ -55,8 +55,9 @@ class SimnAgentConfig(Config):
     # "slam": SimnSlam tracking against the local frames' implicit maps + topological guidance
     pose_source: Literal["slam", "odometry"] = "odometry"
     obstacle_stride: int = 4  # pixel stride of the points that feed the collision model
-    obstacle_max_depth: float = 5.0  # farther points are noisier (D435i error grows with z^2)
-    floor_tolerance: float = 0.06  # |z| below this is floor
+    obstacle_max_depth: float = 3.5  # farther points are noisier (D435i error grows with z^2)
+    floor_tolerance: float = 0.06  # |z| below this is floor (at zero range) ...
+    floor_tolerance_per_m2: float = 0.01  # ... plus this x range^2 (stereo error grows with z^2)
     robot_height: float = 1.0  # points above this do not hit the base
     collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
     # iteration budget only (no wall-clock budget): the same seed gives the same plans
@@ -79,6 +80,7 @@ class SimnAgentConfig(Config):
         require(self.obstacle_stride >= 1, n, "obstacle_stride", "must be >= 1")
         require(self.obstacle_max_depth > 0.3, n, "obstacle_max_depth", "must be > 0.3 m")
         require(self.floor_tolerance > 0, n, "floor_tolerance", "must be > 0")
+        require(self.floor_tolerance_per_m2 >= 0, n, "floor_tolerance_per_m2", "must be >= 0")
         require(
             self.robot_height > self.floor_tolerance,
             n,
@@ -228,7 +230,8 @@ class SimnAgent:
         P = P[P[:, 2] > 0]
         if len(P):
             Pw = transform_points(T_wc, P.astype(np.float64))
-            lab = label_points_world(Pw, self.cfg.floor_tolerance, self.cfg.robot_height)
+            tol = self.cfg.floor_tolerance + self.cfg.floor_tolerance_per_m2 * P[:, 2].astype(np.float64) ** 2
+            lab = label_points_world(Pw, tol, self.cfg.robot_height)
             self._update_maps(Pw, lab)
         if self.slam is None:
             self._map_ms = (time.perf_counter() - t0) * 1e3
