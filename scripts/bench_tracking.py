@@ -30,7 +30,7 @@ from simn_sim.slam.record import read_base, read_odometry  # noqa: E402
 from simn_sim.tracking.lie import constant_velocity_prior  # noqa: E402
 
 PAPER_REG_MS = 40.2
-TUM9 = Path("/work/shared/data/tum_fr1_desk_9")
+TUM9 = Path(__file__).resolve().parents[1] / "tests" / "data" / "tum_fr1_desk_9"
 
 
 def _open3d():

@@ -26,7 +26,7 @@ from simn_sim.slam.config import SlamConfig  # noqa: E402
 from simn_sim.slam.record import record_sequence  # noqa: E402
 from simn_sim.slam.semantics_eval import evaluate_classifier  # noqa: E402
 
-TUM9 = Path("/work/shared/data/tum_fr1_desk_9")
+TUM9 = Path(__file__).resolve().parents[1] / "tests" / "data" / "tum_fr1_desk_9"
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
 

@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 EXTRAS="${SIMN_EXTRAS:-dev}"
-APT_PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libglx-mesa0 libgl1 python3-venv"
+APT_PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libglx-mesa0 libgl1 python3-venv libusb-1.0-0"
 missing=""
 for p in $APT_PKGS; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
 if [ -n "$missing" ]; then
