@@ -49,6 +49,13 @@ def _resolve_agent(name: str | None) -> str:
     return name
 
 
+def _resolved_agent_config(agent: str, env: Any) -> dict[str, Any]:
+    """Every config value of ``agent`` (defaults included), for config.json."""
+    from simn_sim.agents import make_agent
+
+    return make_agent(agent, env, {}).config_dict()
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     import gymnasium as gym
     from tqdm import tqdm
@@ -69,7 +76,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "env_id": args.env,
         "env": env.unwrapped.cfg.to_dict(),
         "agent": agent,
-        "agent_config": {},
+        "agent_config": _resolved_agent_config(agent, env.unwrapped),
         "seed": args.seed,
         "episode": episode,
     }
