@@ -55,9 +55,9 @@ class SimnAgentConfig(Config):
     # "slam": SimnSlam tracking against the local frames' implicit maps + topological guidance
     pose_source: Literal["slam", "odometry"] = "odometry"
     obstacle_stride: int = 4  # pixel stride of the points that feed the collision model
-    obstacle_max_depth: float = 4.0  # farther points are noisier (D435i error grows with z^2)
+    obstacle_max_depth: float = 3.5  # farther points are noisier (D435i error grows with z^2)
     floor_tolerance: float = 0.06  # |z| below this is floor (at zero range) ...
-    floor_tolerance_per_m2: float = 0.006  # ... plus this x range^2 (stereo error grows with z^2)
+    floor_tolerance_per_m2: float = 0.01  # ... plus this x range^2 (stereo error grows with z^2)
     robot_height: float = 1.0  # points above this do not hit the base
     collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
     # iteration budget only (no wall-clock budget): the same seed gives the same plans
