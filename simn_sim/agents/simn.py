@@ -73,6 +73,12 @@ class SimnAgentConfig(Config):
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
     window: float = 6.0  # uniform RRT* samples the known map's box padded by this (m)
     slam: dict[str, Any] | None = None  # SlamConfig values (pose_source="slam")
+    # odometry mode, dynamic scenes: keep obstacle points in a voxel store, delete the ones the
+    # current depth image sees through (free-space carving: a person who walked away), and
+    # rebuild the collision model from the store every ``rebuild_every`` steps
+    carve: bool = False
+    carve_voxel: float = 0.05
+    carve_margin: float = 0.15  # a point is seen through when the depth there is this much farther
     seed: int = 0
 
     def validate(self) -> None:
@@ -91,6 +97,8 @@ class SimnAgentConfig(Config):
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
         require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
+        require(self.carve_voxel > 0, n, "carve_voxel", "must be > 0")
+        require(self.carve_margin > 0, n, "carve_margin", "must be > 0")
 
 
 def strided(depth: np.ndarray, intr: Intrinsics, stride: int) -> tuple[np.ndarray, Intrinsics]:
@@ -171,6 +179,9 @@ class SimnAgent:
         self.track_failures = 0
         self.revisits = 0
         self._bump_points: list[np.ndarray] = []
+        self._obst_store = np.zeros((0, 3))
+        self._carved_since_rebuild = False
+        self.carved_points = 0
         self._last_cmd = np.zeros(2)
         self._stuck_steps = 0
         self._state = "starting"
@@ -230,12 +241,53 @@ class SimnAgent:
         P = P[P[:, 2] > 0]
         if len(P):
             Pw = transform_points(T_wc, P.astype(np.float64))
-            tol = self.cfg.floor_tolerance + self.cfg.floor_tolerance_per_m2 * P[:, 2].astype(np.float64) ** 2
+            tol = (
+                self.cfg.floor_tolerance
+                + self.cfg.floor_tolerance_per_m2 * P[:, 2].astype(np.float64) ** 2
+            )
             lab = label_points_world(Pw, tol, self.cfg.robot_height)
-            self._update_maps(Pw, lab)
+            if self.cfg.carve:
+                self._carve_and_store(d, intr, T_wc, Pw[lab == OBSTACLE])
+            else:
+                self._update_maps(Pw, lab)
         if self.slam is None:
             self._map_ms = (time.perf_counter() - t0) * 1e3
         return T_wc
+
+    def _carve_and_store(
+        self, depth: np.ndarray, intr: Intrinsics, T_wc: np.ndarray, new_obst: np.ndarray
+    ) -> None:
+        """Free-space carving over the agent's obstacle voxel store (see ``SimnAgentConfig.carve``)."""
+        st = self._obst_store
+        if len(st):
+            pc = transform_points(inv_T(T_wc), st)
+            z = pc[:, 2]
+            front = z > 0.3
+            zz = np.where(front, z, 1.0)
+            u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(int)
+            v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(int)
+            inside = front & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+            zo = np.zeros(len(z))
+            zo[inside] = depth[v[inside], u[inside]]
+            through = inside & (zo > 0) & (zo > z + self.cfg.carve_margin)
+            if through.any():
+                st = st[~through]
+                self.carved_points += int(through.sum())
+                self._carved_since_rebuild = True
+        if len(new_obst):
+            allp = np.concatenate([st, new_obst]) if len(st) else new_obst
+            _, keep = np.unique(
+                np.floor(allp / self.cfg.carve_voxel).astype(np.int64), axis=0, return_index=True
+            )
+            st = allp[np.sort(keep)]
+            self._update_maps(new_obst, np.full(len(new_obst), OBSTACLE, np.int8))
+        self._obst_store = st
+        if self._carved_since_rebuild and self.steps % self.cfg.rebuild_every == 0:
+            self.checker.reset()
+            self.safety.reset()
+            pts = np.concatenate([st, *self._bump_points]) if self._bump_points else st
+            self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
+            self._carved_since_rebuild = False
 
     def _update_maps(self, points: np.ndarray, labels: np.ndarray) -> None:
         if len(points):

@@ -341,6 +341,7 @@ class SimnOfficeEnv(gym.Env):
         self._prev_pose = start.copy()
         self._steps = 0
         self._collisions_people = 0
+        self._touching_person = False
         self._prev_geo = geo0
         self.metrics = EpisodeMetrics(dt=self.dt)
         self.metrics.reset(start[:2], geo0)
@@ -407,7 +408,9 @@ class SimnOfficeEnv(gym.Env):
             mujoco.mj_forward(self.model, self.data)
             hit_person = self._hull_contact_with_people()
             collided |= hit_person
-            self._collisions_people += int(hit_person)
+            # collision events with people (rising edges), like EpisodeMetrics.collisions
+            self._collisions_people += int(hit_person and not self._touching_person)
+            self._touching_person = hit_person
         self._steps += 1
         pose = self._pose2d()
         self._integrate_odometry(pose)
