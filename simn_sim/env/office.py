@@ -395,13 +395,12 @@ class SimnOfficeEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         v, w = self._check_action(action)
         collided = False
-        qa, da = self._scene.qpos_adr, self._scene.dof_adr
+        qa = self._scene.qpos_adr
         for _ in range(self.frame_skip):
             yaw = self.data.qpos[qa[2]]
             self.data.ctrl[:3] = [v * math.cos(yaw), v * math.sin(yaw), w]
             mujoco.mj_step(self.model, self.data)
             collided |= self._hull_in_contact()
-        del da
         if self._people.pos.shape[0]:
             self._people.advance(self.dt)
             self._place_people()
