@@ -108,7 +108,9 @@ class Config:
         out: dict[str, Any] = {}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            out[f.name] = v.to_dict() if isinstance(v, Config) else (list(v) if isinstance(v, tuple) else v)
+            out[f.name] = (
+                v.to_dict() if isinstance(v, Config) else (list(v) if isinstance(v, tuple) else v)
+            )
         return out
 
     def hash(self) -> str:

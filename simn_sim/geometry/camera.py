@@ -31,13 +31,17 @@ class Intrinsics:
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"Intrinsics: image size must be positive, got {self.width}x{self.height}")
+            raise ValueError(
+                f"Intrinsics: image size must be positive, got {self.width}x{self.height}"
+            )
         for name in ("fx", "fy", "cx", "cy"):
             v = getattr(self, name)
             if not math.isfinite(v):
                 raise ValueError(f"Intrinsics.{name} must be finite, got {v}")
         if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+            raise ValueError(
+                f"Intrinsics: focal lengths must be positive, got fx={self.fx}, fy={self.fy}"
+            )
 
     @classmethod
     def from_fovy(cls, width: int, height: int, fovy_deg: float = D435I_FOVY_DEG) -> Intrinsics:
