@@ -226,12 +226,7 @@ class SimnAgent:
                 # anchors moved (pose graph) or periodic refresh: rebuild the collision model from
                 # the local frames' obstacle stores (which drop points seen through: no ghosts)
                 self._anchors_version = self.slam.anchors_version
-                self.checker.reset()
-                self.safety.reset()
-                pts = self.slam.obstacle_points_world()
-                if self._bump_points:
-                    pts = np.concatenate([pts, *self._bump_points])
-                self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
+                self._rebuild_maps(self.slam.obstacle_points_world())
             else:
                 P = fr.obstacle_points_world
                 self._update_maps(P, np.full(len(P), OBSTACLE, np.int8))
@@ -283,11 +278,19 @@ class SimnAgent:
             self._update_maps(new_obst, np.full(len(new_obst), OBSTACLE, np.int8))
         self._obst_store = st
         if self._carved_since_rebuild and self.steps % self.cfg.rebuild_every == 0:
-            self.checker.reset()
-            self.safety.reset()
-            pts = np.concatenate([st, *self._bump_points]) if self._bump_points else st
-            self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
+            self._rebuild_maps(st)
             self._carved_since_rebuild = False
+
+    def _rebuild_maps(self, obstacle_points: np.ndarray) -> None:
+        """Rebuild both collision models from ``obstacle_points`` plus the bump points."""
+        self.checker.reset()
+        self.safety.reset()
+        pts = (
+            np.concatenate([obstacle_points, *self._bump_points])
+            if self._bump_points
+            else obstacle_points
+        )
+        self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
 
     def _update_maps(self, points: np.ndarray, labels: np.ndarray) -> None:
         if len(points):
