@@ -25,7 +25,7 @@ import numpy as np
 
 from simn_sim.config import Config, require
 from simn_sim.planning.collision import CollisionChecker
-from simn_sim.planning.rrt import PlanStats, _as_xy
+from simn_sim.planning.rrt import PlanStats, check_endpoints
 from simn_sim.planning.samplers import Bounds, _check_bounds
 from simn_sim.planning.smoothing import path_length
 
@@ -135,13 +135,7 @@ class OmplRRTStar:
     def plan(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Plan from ``start`` (2,) to ``goal`` (2,); same input checks as :class:`RRTStar`."""
         ob, og, ou = self._ob, self._og, self._ou
-        start = _as_xy(start, "start")
-        goal = _as_xy(goal, "goal")
-        free = self.checker.is_free(np.stack([start, goal]))
-        if not free[0]:
-            raise ValueError(f"start {start} is in collision")
-        if not free[1]:
-            raise ValueError(f"goal {goal} is in collision")
+        start, goal = check_endpoints(self.checker, start, goal)
         cfg = self.cfg
         if cfg.quiet:
             ou.setLogLevel(ou.LOG_WARN)

@@ -102,6 +102,18 @@ def _as_xy(x: np.ndarray, name: str) -> np.ndarray:
     return a
 
 
+def check_endpoints(checker: CollisionChecker, start, goal) -> tuple[np.ndarray, np.ndarray]:
+    """Finite (2,) start and goal, both free under ``checker``; else ValueError naming which."""
+    start = _as_xy(start, "start")
+    goal = _as_xy(goal, "goal")
+    free = checker.is_free(np.stack([start, goal]))
+    if not free[0]:
+        raise ValueError(f"start {start} is in collision")
+    if not free[1]:
+        raise ValueError(f"goal {goal} is in collision")
+    return start, goal
+
+
 class RRTStar:
     """RRT* with a pluggable sampler (pyroboplan-style planner object).
 
@@ -176,13 +188,7 @@ class RRTStar:
         last row = goal, or None if no solution within the budget. Raises ValueError for
         non-finite inputs or a start/goal in collision.
         """
-        start = _as_xy(start, "start")
-        goal = _as_xy(goal, "goal")
-        free = self.checker.is_free(np.stack([start, goal]))
-        if not free[0]:
-            raise ValueError(f"start {start} is in collision")
-        if not free[1]:
-            raise ValueError(f"goal {goal} is in collision")
+        start, goal = check_endpoints(self.checker, start, goal)
         cfg = self.cfg
         rng = self.rng
         t0 = time.perf_counter()
