@@ -304,3 +304,32 @@ def test_agent_registry_lists_builtin_agents_and_rejects_unknown(env):
     assert {"oracle", "simn", "rrtstar"} <= set(agent_names())
     with pytest.raises(ValueError, match="unknown agent 'nope'"):
         make_agent("nope", env.unwrapped)
+
+
+def test_depth_after_turning_and_driving_matches_the_reported_camera_pose():
+    """The image returned by ``step`` is rendered at the pose ``info`` reports. (It lagged one
+    physics substep: after ``mj_step`` MuJoCo's camera poses are those of the state before the
+    last integration, 0.9 deg behind at 0.8 rad/s, until kinematics are recomputed.)"""
+    e = _env_with_layout(_wall_layout(), width=320, height=240)
+    obs, info = e.reset(
+        options={
+            "episode": {
+                "episode_id": "w",
+                "layout_seed": None,
+                "start": [15.0, 7.0, 0.0],
+                "goal": [3.0, 3.0],
+            }
+        }
+    )
+    for action in ([0.0, 1.0], [0.0, 1.0], [0.5, -1.0], [0.8, 0.0]):
+        obs, _, _, _, info = e.step(np.array(action, np.float32))
+        pts = backproject(obs["depth"], e.camera_info.intrinsics).reshape(-1, 3)
+        valid = obs["depth"].reshape(-1) > 0
+        pw = transform_points(info["T_world_cam"], pts[valid].astype(np.float64))
+        on_wall = pw[:, 2] > 2e-3
+        assert on_wall.sum() > 1000
+        # the east wall's inner face is x = 19.925: every point above the floor lies on it
+        err = np.abs(pw[on_wall, 0] - 19.925)
+        assert err.max() < 1e-3, f"action {action}: max plane error {err.max() * 1000:.1f} mm"
+        assert np.abs(pw[~on_wall, 2]).max() < 2e-3
+    e.close()

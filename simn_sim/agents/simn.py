@@ -206,14 +206,23 @@ class SimnAgent:
         return planar_T(o[0], o[1], o[2])
 
     # ---- perception + mapping ----------------------------------------------------------------
-    def _perceive(self, obs: dict, T_world_cam_prior: np.ndarray) -> np.ndarray:
-        """Pose estimate, map update and collision-model update; returns T_world_cam."""
+    def _perceive(
+        self, obs: dict, T_world_cam_prior: np.ndarray, T_odom: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Pose estimate, map update and collision-model update; returns T_world_cam.
+
+        ``T_world_cam_prior``: the odometry increment applied to the previous estimate (the pose
+        in odometry mode). SimnSlam is given the raw odometry pose ``T_odom`` instead: it uses
+        only the change between consecutive calls, and the change between two priors that
+        already contain its own corrections would apply each correction again on every later
+        frame (a 10 cm correction became 10 cm of drift per frame)."""
         t0 = time.perf_counter()
         T_wc = T_world_cam_prior
         self._map_ms = self._track_ms = None
         if self.slam is not None:
+            T_odom_cam = (self._odom_T(obs) if T_odom is None else T_odom) @ self.T_base_cam
             fr = self.slam.process(
-                self.steps * self.control_dt, obs["rgb"], obs["depth"], T_world_cam_prior
+                self.steps * self.control_dt, obs["rgb"], obs["depth"], T_odom_cam
             )
             T_wc = fr.T_world_cam
             self._track_ms, self._map_ms = fr.track_ms, fr.map_ms
@@ -443,7 +452,7 @@ class SimnAgent:
         self._detect_bump(inv_T(self.T_odom_prev) @ T_odom)
         T_base_prior = orthonormalize(self.T_base_est @ inv_T(self.T_odom_prev) @ T_odom)
         self.T_odom_prev = T_odom
-        T_wc = self._perceive(obs, T_base_prior @ self.T_base_cam)
+        T_wc = self._perceive(obs, T_base_prior @ self.T_base_cam, T_odom)
         self.T_base_est = T_wc @ inv_T(self.T_base_cam)
         pose = np.array([self.T_base_est[0, 3], self.T_base_est[1, 3], yaw_of(self.T_base_est)])
         xy = pose[:2]

@@ -404,7 +404,10 @@ class SimnOfficeEnv(gym.Env):
         if self._people.pos.shape[0]:
             self._people.advance(self.dt)
             self._place_people()
-            mujoco.mj_forward(self.model, self.data)
+        # after mj_step the body and camera poses in ``data`` are those of the state before the
+        # last integration; recompute them so the image is rendered at the pose ``info`` reports
+        mujoco.mj_forward(self.model, self.data)
+        if self._people.pos.shape[0]:
             hit_person = self._hull_contact_with_people()
             collided |= hit_person
             # collision events with people (rising edges), like EpisodeMetrics.collisions

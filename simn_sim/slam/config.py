@@ -75,6 +75,13 @@ class SlamConfig(Config):
     prior_sigma_trans: float = 0.03  # m
     odom_prior_sigma_rot_deg: float = 0.3  # an external (wheel odometry) increment per frame
     odom_prior_sigma_trans: float = 0.005  # m
+    # registration weights: inverse variance of a point's depth noise, sigma(z) = depth_sigma0
+    # + depth_sigma_per_m2 z^2 (stereo depth error grows with z^2); 0 per m^2: equal weights
+    depth_sigma0: float = 0.003
+    depth_sigma_per_m2: float = 0.0
+    # innovation gate: a fused correction beyond this Mahalanobis distance under the motion
+    # prior's covariance is rejected (the prediction is kept); 0 disables
+    gate_sigmas: float = 6.0
     max_correction_m: float = 0.3  # a registration moving the prior further is rejected
     max_correction_deg: float = 20.0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
@@ -134,6 +141,9 @@ class SlamConfig(Config):
         require(self.train_every >= 1, n, "train_every", "must be >= 1")
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
+        require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")
+        require(self.depth_sigma_per_m2 >= 0, n, "depth_sigma_per_m2", "must be >= 0")
+        require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
         require(0 <= self.track_min_valid_fraction <= 1, n, "track_min_valid_fraction", "[0, 1]")

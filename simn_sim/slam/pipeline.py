@@ -286,6 +286,16 @@ class SimnSlam:
         pix = np.stack([rows * s, cols * s], axis=1)
         return {"points": pts, "normals": nrm, "colors": col, "depth": zz, "valid": ok, "pix": pix}
 
+    def _point_weights(self, pts: np.ndarray) -> np.ndarray | None:
+        """Registration prior weights: the inverse depth-noise variance of each point relative
+        to a point at zero range, sigma(z) = depth_sigma0 + depth_sigma_per_m2 z^2 (the stereo
+        error grows with z^2); None when ``depth_sigma_per_m2`` is 0 (equal weights)."""
+        k = self.cfg.depth_sigma_per_m2
+        if k <= 0:
+            return None
+        s0 = self.cfg.depth_sigma0
+        return (s0 / (s0 + k * pts[:, 2].astype(np.float64) ** 2)) ** 2
+
     def _track_points(self, pts: np.ndarray) -> np.ndarray:
         pts = pts[pts[:, 2] <= self.cfg.track_max_depth]
         if len(pts) == 0:
@@ -520,7 +530,7 @@ class SimnSlam:
         T_cur_f = inv_T(self.topo.anchor(cur)) @ self.topo.anchor(fid)
         init = inv_T(T_cur_f) @ T_pred
         try:
-            res = register(pts, sdf, init, self._track_reg)
+            res = register(pts, sdf, init, self._track_reg, weights=self._point_weights(pts))
         except Exception as e:  # noqa: BLE001 - tracking must never raise
             return T_pred, False, f"registration error: {type(e).__name__}: {e}", 0, fid, np.nan
         if not res.success:
@@ -546,6 +556,15 @@ class SimnSlam:
                     info = D @ ((V * ev) @ V.T) @ D
                 fused = np.linalg.solve(info + prior_info, info @ delta)
                 T_est = _rigid(T_pred @ se3_exp(fused))
+                # innovation gate: a correction many prior sigmas away is a registration that
+                # slid (an edge of the model, a weakly constrained view), not the motion the
+                # prediction missed; keep the prediction
+                gate = self.cfg.gate_sigmas
+                if gate > 0:
+                    m = float(np.sqrt(max(fused @ prior_info @ fused, 0.0)))
+                    if m > gate:
+                        why = f"correction {m:.1f} sigma of the motion prior (gate {gate:g})"
+                        return T_pred, False, why, res.iterations, fid, res.final_rms
             except np.linalg.LinAlgError:
                 pass
             if res.eig_ratio < self.cfg.registration.degeneracy_ratio:
@@ -568,7 +587,7 @@ class SimnSlam:
             sdf = st.loop_sdf[1].sdf_and_grad
         if sdf is None:
             raise ValueError(f"frame {fid} has no map to register against")
-        return register(pts, sdf, T_init, self.cfg.registration)
+        return register(pts, sdf, T_init, self.cfg.registration, weights=self._point_weights(pts))
 
     def _revisit(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
         if len(self._states) <= self.cfg.loop.exclude_recent + 1:

@@ -132,8 +132,16 @@ def check_points(points: Any, name: str = "points_cam") -> np.ndarray:
 class _Evaluator:
     """Evaluates residuals, Jacobians and validity of the points under a pose."""
 
-    def __init__(self, P: np.ndarray, fn: SdfAndGrad, cfg: RegistrationConfig, as_torch: bool):
+    def __init__(
+        self,
+        P: np.ndarray,
+        fn: SdfAndGrad,
+        cfg: RegistrationConfig,
+        as_torch: bool,
+        weights: np.ndarray | None = None,
+    ):
         self.P, self.fn, self.cfg, self.as_torch = P, fn, cfg, as_torch
+        self.pw = np.ones(len(P)) if weights is None else weights
 
     def __call__(self, T: np.ndarray) -> dict[str, np.ndarray]:
         q = self.P @ T[:3, :3].T + T[:3, 3]
@@ -155,7 +163,7 @@ class _Evaluator:
             valid &= _to_numpy(out[2]).astype(bool).reshape(-1)
         gn = np.linalg.norm(np.where(valid[:, None], grad, 0.0), axis=1)
         valid &= (gn >= self.cfg.grad_norm_min) & (gn <= self.cfg.grad_norm_max)
-        return {"q": q, "r": np.where(valid, sdf, 0.0), "g": grad, "valid": valid}
+        return {"q": q, "r": np.where(valid, sdf, 0.0), "g": grad, "valid": valid, "pw": self.pw}
 
 
 def _gm_weights(r: np.ndarray, c: float) -> np.ndarray:
@@ -163,10 +171,12 @@ def _gm_weights(r: np.ndarray, c: float) -> np.ndarray:
     return (c * c / (c * c + r * r)) ** 2
 
 
-def _gm_cost(r: np.ndarray, valid: np.ndarray, c: float) -> float:
-    """Robust cost; an invalid point counts as a saturated outlier (c^2 / 2)."""
+def _gm_cost(ev: dict, c: float) -> float:
+    """Robust cost, each point times its prior weight; an invalid point counts as a saturated
+    outlier (c^2 / 2)."""
+    r = ev["r"]
     rho = 0.5 * r * r * c * c / (c * c + r * r)
-    return float(np.where(valid, rho, 0.5 * c * c).sum())
+    return float((ev["pw"] * np.where(ev["valid"], rho, 0.5 * c * c)).sum())
 
 
 def _scale(r: np.ndarray, valid: np.ndarray, cfg: RegistrationConfig) -> float:
@@ -183,7 +193,7 @@ def _normal_equations(ev: dict, c: float) -> tuple[np.ndarray, np.ndarray, np.nd
     q, r, g = ev["q"][v], ev["r"][v], ev["g"][v]
     cen = q.mean(axis=0)
     J = np.concatenate([np.cross(q - cen, g), g], axis=1)
-    w = _gm_weights(r, c)
+    w = _gm_weights(r, c) * ev["pw"][v]
     Jw = J * w[:, None]
     return Jw.T @ J, Jw.T @ r, cen, float((w * r * r).sum())
 
@@ -203,10 +213,13 @@ def register(
     cfg: RegistrationConfig | None = None,
     *,
     points_as: Literal["numpy", "torch"] = "numpy",
+    weights: Any = None,
 ) -> RegistrationResult:
     """Register (N, 3) camera-frame points to the zero level set of ``sdf_and_grad``.
 
     T_init: (4, 4) initial ``T_map_cam`` (e.g. :func:`~simn_sim.tracking.lie.constant_velocity_prior`).
+    ``weights``: optional (N,) prior weights >= 0 (e.g. the inverse variance of each point's
+    depth noise relative to the best point), multiplied into the Geman-McClure IRLS weights.
     Never raises for poor convergence: on failure it returns ``T_init`` with ``success=False``
     and a ``reason``. Raises ``ValueError`` only for bad input (shape, dtype, NaN, empty).
     """
@@ -214,7 +227,14 @@ def register(
     t0 = time.perf_counter()
     P = check_points(points_cam)
     T0 = check_pose(T_init, "T_init")
-    ev_fn = _Evaluator(P, sdf_and_grad, cfg, points_as == "torch")
+    W = None
+    if weights is not None:
+        W = np.asarray(_to_numpy(weights), np.float64)
+        if W.shape != (len(P),):
+            raise ValueError(f"weights must have shape ({len(P)},), got {W.shape}")
+        if not np.isfinite(W).all() or (W < 0).any() or not (W > 0).any():
+            raise ValueError("weights must be finite, >= 0 and not all zero")
+    ev_fn = _Evaluator(P, sdf_and_grad, cfg, points_as == "torch", W)
     fail_cov = np.eye(6) * cfg.fail_covariance
 
     def fail(reason: str, it: int, ev: dict | None, rms0: float, ratio: float = float("nan")):
@@ -254,7 +274,7 @@ def register(
         it += 1
         c = _scale(ev["r"], ev["valid"], cfg)
         H, b, cen, _ = _normal_equations(ev, c)
-        cost = _gm_cost(ev["r"], ev["valid"], c)
+        cost = _gm_cost(ev, c)
         accepted = False
         for _ in range(cfg.max_rejects):
             try:
@@ -271,7 +291,7 @@ def register(
             Tc[:3, 3] = cen
             T_new = Tc @ se3_exp(dxi) @ inv_T(Tc) @ T
             ev_new = ev_fn(T_new)
-            if _gm_cost(ev_new["r"], ev_new["valid"], c) <= cost:
+            if _gm_cost(ev_new, c) <= cost:
                 T, ev = T_new, ev_new
                 lam = max(cfg.lambda_reg, lam / cfg.lambda_up)
                 accepted = True
