@@ -109,3 +109,25 @@ def test_bad_inputs_raise() -> None:
     g.add_edge("F", "A", weight=1.0)
     with pytest.raises(ValueError, match="neither"):
         route_subgoal(g, "A", [20.0, 0.0])
+
+
+def test_robot_position_skips_passed_nodes_and_goes_direct_when_the_route_cannot_help() -> None:
+    g = office_graph()
+    goal = [15.5, 0.5]
+    # standing on B's anchor (current frame A): B is passed, the sub-goal is C
+    r = route_subgoal(g, "A", goal, frame_radius=3.0, from_xy=[4.8, 0.1])
+    assert r.kind == "node" and r.next_node == "C"
+    np.testing.assert_allclose(r.xy, [10.0, 0.0])
+    # without the position the next node is B, the anchor the robot stands on
+    assert route_subgoal(g, "A", goal, frame_radius=3.0).next_node == "B"
+    # past every node on the route (within reach of D): the goal itself
+    r = route_subgoal(g, "C", goal, frame_radius=0.2, explored_radius=2.0, from_xy=[14.6, -0.3])
+    assert r.kind == "goal_direct" and r.next_node is None
+    np.testing.assert_allclose(r.xy, goal)
+    # the robot is nearer the goal than the route's last node: nothing to gain by routing
+    goal2 = [20.0, 0.0]
+    r = route_subgoal(g, "A", goal2, frame_radius=3.0, explored_radius=6.0, from_xy=[16.0, 0.0])
+    assert r.kind == "goal_direct" and r.route == ["A", "B", "C", "D"]
+    np.testing.assert_allclose(r.xy, goal2)
+    with pytest.raises(ValueError, match="from_xy"):
+        route_subgoal(g, "A", goal, from_xy=[np.nan, 0.0])

@@ -51,9 +51,11 @@ from simn_sim.semantics import FLOOR, OBSTACLE
 @dataclasses.dataclass(frozen=True)
 class SimnAgentConfig(Config):
     planner: Literal["goal_vector", "uniform"] = "goal_vector"
-    # "odometry": the wheel-odometry pose (the default: real-time at 10 Hz on 2 CPU cores);
-    # "slam": SimnSlam tracking against the local frames' implicit maps + topological guidance
-    pose_source: Literal["slam", "odometry"] = "odometry"
+    # "slam" (the method): SimnSlam tracks every frame against the current local frame's map,
+    # opens local frames, grows the topological map and closes loops; the collision model is
+    # built from the local frames' obstacle stores and topological guidance picks sub-goals.
+    # "odometry": the wheel-odometry pose and one accumulated obstacle map (ablation).
+    pose_source: Literal["slam", "odometry"] = "slam"
     obstacle_stride: int = 4  # pixel stride of the points that feed the collision model
     obstacle_max_depth: float = 3.5  # farther points are noisier (D435i error grows with z^2)
     floor_tolerance: float = 0.06  # |z| below this is floor (at zero range) ...
@@ -71,8 +73,13 @@ class SimnAgentConfig(Config):
     )
     replan_every: int = 10  # control steps between scheduled replans
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
+    # topological guidance over the local frames (pose_source="slam"): see SimnAgent._subgoal
+    topo_guidance: bool = True
+    topo_reach: float = 0.6  # a route node this close to the robot counts as reached (m)
     window: float = 6.0  # uniform RRT* samples the known map's box padded by this (m)
-    slam: dict[str, Any] | None = None  # SlamConfig values (pose_source="slam")
+    # SlamConfig values (pose_source="slam") applied over SlamConfig.for_agent(), the preset
+    # for 10 Hz at 320x240 on a CPU
+    slam: dict[str, Any] | None = None
     # odometry mode, dynamic scenes: keep obstacle points in a voxel store, delete the ones the
     # current depth image sees through (free-space carving: a person who walked away), and
     # rebuild the collision model from the store every ``rebuild_every`` steps
@@ -96,6 +103,7 @@ class SimnAgentConfig(Config):
         require(self.replan_every >= 1, n, "replan_every", "must be >= 1")
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
+        require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
         require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
         require(self.carve_voxel > 0, n, "carve_voxel", "must be > 0")
         require(self.carve_margin > 0, n, "carve_margin", "must be > 0")
@@ -150,7 +158,13 @@ class SimnAgent:
         self.control_dt = float(getattr(env, "dt", 0.1))
 
     def config_dict(self) -> dict[str, Any]:
-        return self.cfg.to_dict()
+        """The resolved config, with the SLAM front-end's full config when it runs."""
+        d = self.cfg.to_dict()
+        if self.cfg.pose_source == "slam":
+            from simn_sim.slam.config import SlamConfig
+
+            d["slam"] = SlamConfig.for_agent(**(self.cfg.slam or {})).to_dict()
+        return d
 
     # ---- episode ---------------------------------------------------------------------------
     def reset(self, obs: dict, info: dict) -> None:
@@ -190,11 +204,13 @@ class SimnAgent:
         self._track_ms: float | None = None
         self.slam = None
         self._anchors_version = 0
+        self._best_goal_dist = math.inf  # the robot's closest approach to the goal so far
+        self._route_kind = "goal_unexplored"
         if self.cfg.pose_source == "slam":
             from simn_sim.slam.pipeline import SimnSlam, SlamConfig
 
             self.slam = SimnSlam(
-                SlamConfig.from_dict(self.cfg.slam or {}), self.intr, T_base_cam=self.T_base_cam
+                SlamConfig.for_agent(**(self.cfg.slam or {})), self.intr, T_base_cam=self.T_base_cam
             )
         self._perceive(obs, self.T_base_est @ self.T_base_cam)
 
@@ -308,17 +324,41 @@ class SimnAgent:
 
     # ---- planning ----------------------------------------------------------------------------
     def _subgoal(self, xy: np.ndarray) -> np.ndarray:
-        """Topological guidance: the next local frame on the route when the goal lies beyond
-        the current frame and the map knows frames near it; else the goal itself."""
-        if self.slam is None or self.slam.topo is None or self.slam.current_frame_id is None:
-            return self.goal
-        try:
-            from simn_sim.planning.topo import route_subgoal
+        """Topological guidance (``topo_guidance``): when the goal lies in the region of an
+        earlier local frame but not in the current one, aim at the next frame on the route over
+        the topological map towards that frame; when no frame covers the goal (unexplored
+        space), aim at the goal itself.
 
-            r = route_subgoal(self.slam.topo.graph, self.slam.current_frame_id, self.goal)
-            return np.asarray(r.xy, float)
-        except (KeyError, ValueError, AttributeError):
+        Only frames whose anchor is nearer the goal (by ``topo_reach``) than the robot has ever
+        been are route targets: guidance leads to explored places that are progress, and a
+        robot that reached the explored place nearest the goal and has to detour from there is
+        not sent back to it (without this rule it oscillated between nearby anchors)."""
+        if not self.cfg.topo_guidance or self.slam is None or self.slam.current_frame_id < 0:
             return self.goal
+        from simn_sim.planning.topo import route_subgoal
+
+        topo = self.slam.topo
+        covering = topo.frames_containing(self.goal)
+        if not covering or self.slam.current_frame_id in covering:
+            self._route_kind = "goal_unexplored" if not covering else "goal_in_frame"
+            return self.goal
+        dist = {f: float(np.hypot(*(topo.anchor(f)[:2, 3] - self.goal))) for f in covering}
+        cands = [f for f in covering if dist[f] < self._best_goal_dist - self.cfg.topo_reach]
+        if not cands:
+            self._route_kind = "goal_direct"
+            return self.goal
+        target = min(cands, key=dist.__getitem__)
+        r = route_subgoal(
+            topo.graph,
+            self.slam.current_frame_id,
+            self.goal,
+            frame_radius=self.cfg.topo_reach,
+            goal_node=target,
+            from_xy=xy,
+            reach=self.cfg.topo_reach,
+        )
+        self._route_kind = r.kind
+        return np.asarray(r.xy, float)
 
     def _plan(self, xy: np.ndarray, scheduled: bool = False) -> None:
         """Plan from ``xy`` to the (sub-)goal. A scheduled replan keeps the current path unless
@@ -456,6 +496,7 @@ class SimnAgent:
         self.T_base_est = T_wc @ inv_T(self.T_base_cam)
         pose = np.array([self.T_base_est[0, 3], self.T_base_est[1, 3], yaw_of(self.T_base_est)])
         xy = pose[:2]
+        self._best_goal_dist = min(self._best_goal_dist, float(np.hypot(*(xy - self.goal))))
         self._plan_ms = None
         if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
@@ -508,6 +549,7 @@ class SimnAgent:
             "plan_ms": self._plan_ms,
             "map_ms": self._map_ms,
             "track_ms": self._track_ms,
+            "route": getattr(self, "_route_kind", None),
         }
         if self.slam is not None and hasattr(self.slam, "debug"):
             d.update(self.slam.debug())

@@ -20,9 +20,11 @@ class RouteSubgoal(NamedTuple):
 
     xy: np.ndarray
     """(2,) point to plan towards."""
-    kind: Literal["goal_in_frame", "goal_unexplored", "node", "no_route"]
+    kind: Literal["goal_in_frame", "goal_unexplored", "node", "no_route", "goal_direct"]
     """Why this point: the goal is in the current frame / in unexplored space (xy = goal),
-    the next node on the route (xy = its anchor), or no graph path exists (xy = goal)."""
+    the next node on the route (xy = its anchor), no graph path exists (xy = goal), or (with
+    ``from_xy``) the route has nothing left to offer: the robot is no farther from the goal
+    than the route's last node, or has passed every node on it (xy = goal)."""
     next_node: Any
     """The node whose anchor is xy (None when xy is the goal)."""
     route: list
@@ -62,6 +64,8 @@ def route_subgoal(
     pos_attr: str = "anchor_xy",
     weight: str = "weight",
     goal_node: Any = None,
+    from_xy: np.ndarray | None = None,
+    reach: float = 0.6,
 ) -> RouteSubgoal:
     """Where the local planner should aim next.
 
@@ -76,6 +80,10 @@ def route_subgoal(
             (default: ``2 * frame_radius``).
         goal_node: the node whose frame holds the goal, when the caller knows it (e.g. the goal
             was localised in a frame); default: the node with the nearest anchor.
+        from_xy: the robot's position, when known. Route nodes within ``reach`` of it count as
+            passed (the next one is returned), and when the robot is no farther from the goal
+            than the route's last node the goal itself is returned (``"goal_direct"``): a robot
+            standing on a node's anchor is never sent to that anchor again.
     Returns:
         :class:`RouteSubgoal`. Pure function: the graph is not modified.
     """
@@ -113,5 +121,17 @@ def route_subgoal(
     if len(route) == 1:
         # the node nearest the goal is the current one but the goal is outside its region
         return RouteSubgoal(goal.copy(), "goal_in_frame", None, route)
+    if from_xy is not None:
+        here = np.asarray(from_xy, dtype=np.float64).reshape(-1)
+        if here.shape != (2,) or not np.all(np.isfinite(here)):
+            raise ValueError(f"from_xy must be a finite x-y pair, got {from_xy!r}")
+        last = node_xy(graph, route[-1], pos_attr)
+        if np.hypot(*(goal - here)) <= np.hypot(*(goal - last)):
+            return RouteSubgoal(goal.copy(), "goal_direct", None, route)
+        for n in route[1:]:
+            p = node_xy(graph, n, pos_attr)
+            if np.hypot(*(p - here)) > reach:
+                return RouteSubgoal(p, "node", n, route)
+        return RouteSubgoal(goal.copy(), "goal_direct", None, route)
     nxt = route[1]
     return RouteSubgoal(node_xy(graph, nxt, pos_attr), "node", nxt, route)
