@@ -141,6 +141,8 @@ class RRTStar:
         self.raw_path: np.ndarray | None = None
         self.path: np.ndarray | None = None
         self.stats = PlanStats()
+        self._it = 0
+        self._busy_s = 0.0
 
     # ------------------------------------------------------------------ core steps
     def _insert(self, x_new: np.ndarray, extra: int = -1) -> int:
@@ -186,37 +188,78 @@ class RRTStar:
 
         Returns the (M, 2) path (shortcut-smoothed if ``cfg.shortcut``), first row = start,
         last row = goal, or None if no solution within the budget. Raises ValueError for
-        non-finite inputs or a start/goal in collision.
+        non-finite inputs or a start/goal in collision. Same as :meth:`begin`, then
+        :meth:`iterate` until :attr:`done`, then :meth:`finish`.
         """
+        self.begin(start, goal)
+        self.iterate(self.cfg.max_iterations)
+        return self.finish()
+
+    # ------------------------------------------------------------------ anytime interface
+    def begin(self, start: np.ndarray, goal: np.ndarray) -> None:
+        """Start a plan: a new tree at ``start``; grow it with :meth:`iterate` (possibly over
+        several control steps), then :meth:`finish`. The same calls with the same rng give
+        the same tree however the iterations are split."""
         start, goal = check_endpoints(self.checker, start, goal)
-        cfg = self.cfg
-        rng = self.rng
-        t0 = time.perf_counter()
-        deadline = t0 + cfg.time_budget_ms * 1e-3 if cfg.time_budget_ms > 0 else math.inf
-        self.sampler.reset(start, goal, rng)
+        self._start, self._goal = start, goal
+        self._t0 = time.perf_counter()
+        self._busy_s = 0.0
+        self._it = 0
+        self._coin = np.zeros(0)  # goal-bias coins, drawn in batches as iterations go
+        self.sampler.reset(start, goal, self.rng)
         self.tree = tree = Tree(start)
         self.goal_index = None
         self.raw_path = self.path = None
         st = self.stats = PlanStats()
-        coin = np.zeros(0)  # goal-bias coins, drawn in batches as iterations go
-        step = cfg.step_size
-
-        if self.checker.segment_free(start, goal) and np.hypot(*(goal - start)) <= step:
+        if (
+            self.checker.segment_free(start, goal)
+            and np.hypot(*(goal - start)) <= self.cfg.step_size
+        ):
             self.goal_index = tree.add(goal, 0, float(np.hypot(*(goal - start))))
             st.first_solution_iteration = 0
-            st.first_solution_time_s = time.perf_counter() - t0
+            st.first_solution_time_s = time.perf_counter() - self._t0
             st.first_solution_cost = float(tree.cost[self.goal_index])
+        self._busy_s += time.perf_counter() - self._t0
 
-        it = 0
-        while it < cfg.max_iterations:
+    @property
+    def done(self) -> bool:
+        """The budget is spent (iterations or, when set, the wall-clock budget of the time
+        spent inside :meth:`begin` / :meth:`iterate`), or a first solution was found with
+        ``stop_at_first_solution``."""
+        cfg = self.cfg
+        if self._it >= cfg.max_iterations:
+            return True
+        if self.goal_index is not None and cfg.stop_at_first_solution:
+            return True
+        return cfg.time_budget_ms > 0 and self._busy_s * 1e3 >= cfg.time_budget_ms
+
+    def iterate(self, n: int) -> bool:
+        """Run up to ``n`` more iterations (fewer if the budget runs out); returns :attr:`done`."""
+        if self.tree is None:
+            raise RuntimeError("call begin() before iterate()")
+        cfg = self.cfg
+        rng = self.rng
+        tree = self.tree
+        goal = self._goal
+        st = self.stats
+        step = cfg.step_size
+        t_in = time.perf_counter()
+        deadline = (
+            t_in + (cfg.time_budget_ms * 1e-3 - self._busy_s)
+            if cfg.time_budget_ms > 0
+            else math.inf
+        )
+        stop = min(cfg.max_iterations, self._it + int(n))
+        while self._it < stop:
             if self.goal_index is not None and cfg.stop_at_first_solution:
                 break
             if time.perf_counter() > deadline:
                 break
-            it += 1
+            self._it += 1
+            it = self._it
             if (it - 1) % 256 == 0:
-                coin = rng.random(256)
-            if coin[(it - 1) % 256] < cfg.goal_bias and self.goal_index is None:
+                self._coin = rng.random(256)
+            if self._coin[(it - 1) % 256] < cfg.goal_bias and self.goal_index is None:
                 x_rand = goal
             else:
                 x_rand = self.sampler.sample(tree)
@@ -244,22 +287,36 @@ class RRTStar:
                         self.goal_index = g
                 if self.goal_index is not None:
                     st.first_solution_iteration = it
-                    st.first_solution_time_s = time.perf_counter() - t0
+                    st.first_solution_time_s = self._busy_s + time.perf_counter() - t_in
                     st.first_solution_cost = float(tree.cost[self.goal_index])
+        self._busy_s += time.perf_counter() - t_in
+        return self.done
 
-        st.iterations = it
+    def finish(self) -> np.ndarray | None:
+        """The path of the current tree (shortcut-smoothed if ``cfg.shortcut``) or None."""
+        if self.tree is None:
+            raise RuntimeError("call begin() before finish()")
+        cfg = self.cfg
+        tree = self.tree
+        st = self.stats
+        t = time.perf_counter()
+        st.iterations = self._it
         st.n_nodes = len(tree)
         st.n_rewires = tree.n_rewires
+        self.raw_path = self.path = None
         if self.goal_index is not None:
             self.raw_path = tree.path_to(self.goal_index)
-            self.raw_path[-1] = goal
+            self.raw_path[-1] = self._goal
             st.cost = float(tree.cost[self.goal_index])
             if cfg.shortcut:
-                self.path = shortcut_path(self.raw_path, self.checker, rng, cfg.shortcut_iterations)
+                self.path = shortcut_path(
+                    self.raw_path, self.checker, self.rng, cfg.shortcut_iterations
+                )
             else:
                 self.path = self.raw_path.copy()
             st.smoothed_cost = path_length(self.path)
-        st.time_s = time.perf_counter() - t0
+        self._busy_s += time.perf_counter() - t
+        st.time_s = self._busy_s
         return None if self.path is None else self.path.copy()
 
 

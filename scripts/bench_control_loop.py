@@ -1,0 +1,147 @@
+"""Control-loop timing of the navigation agents in the closed loop (is ``simn`` real-time at 10 Hz?).
+
+For each agent config, runs episodes of an episode set in one process and times every
+``agent.act(obs)`` call: the whole control step (SLAM tracking + mapping + local frames +
+topological map + collision model + planning + control). The env's own step (physics + RGB-D
+render) is timed separately. Reported per config: mean / median / p95 / p99 / max ms per control
+step, the share of steps over the control period (100 ms at 10 Hz), the breakdown (tracking,
+mapping, planning on the steps that plan) and the ratio of the mean to the control period and to
+the odometry-only ablation measured in the same run.
+
+    MUJOCO_GL=egl .venv/bin/python scripts/bench_control_loop.py --episodes 4 --out F.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+
+import simn_sim  # noqa: E402,F401
+from simn_sim.agents import make_agent  # noqa: E402
+from simn_sim.env.episodes import EpisodeSet  # noqa: E402
+from simn_sim.paths import envs_dir  # noqa: E402
+
+CONFIGS = {
+    "simn (slam, default)": {},
+    "simn, odometry pose (ablation)": {"pose_source": "odometry"},
+}
+
+
+def _stats(x: list[float]) -> dict[str, float]:
+    a = np.asarray(x, float)
+    if a.size == 0:
+        return {"n": 0}
+    return {
+        "n": int(a.size),
+        "mean": float(a.mean()),
+        "median": float(np.median(a)),
+        "p95": float(np.percentile(a, 95)),
+        "p99": float(np.percentile(a, 99)),
+        "max": float(a.max()),
+    }
+
+
+def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dict:
+    env = gym.make("SimnOffice-v0", config=env_cfg)
+    act, env_ms, track, mapping, plan = [], [], [], [], []
+    outcomes = []
+    for ep in episodes:
+        obs, info = env.reset(seed=ep.seed, options={"episode": ep.to_dict()})
+        agent = make_agent("simn", env.unwrapped, agent_cfg)
+        agent.reset(obs, info)
+        while True:
+            t = time.perf_counter()
+            a = agent.act(obs)
+            act.append((time.perf_counter() - t) * 1e3)
+            d = agent.debug()
+            for key, dst in (("track_ms", track), ("map_ms", mapping), ("plan_ms", plan)):
+                if d.get(key) is not None:
+                    dst.append(float(d[key]))
+            t = time.perf_counter()
+            obs, _, term, trunc, info = env.step(a)
+            env_ms.append((time.perf_counter() - t) * 1e3)
+            if term or trunc:
+                outcomes.append(info["episode"]["termination"])
+                break
+    env.close()
+    a = np.asarray(act)
+    return {
+        "act_ms": _stats(act),
+        "over_period_share": float(np.mean(a > period_ms)),
+        "track_ms": _stats(track),
+        "map_ms": _stats(mapping),
+        "plan_ms": _stats(plan),
+        "env_step_ms": _stats(env_ms),
+        "terminations": outcomes,
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--episode-file", type=Path, default=envs_dir() / "episodes/office_nav_v1.json")
+    ap.add_argument("--episodes", type=int, default=4, help="first N episodes, one per layout")
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=240)
+    ap.add_argument("--odom-noise", type=float, default=0.0)
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args()
+    eps = EpisodeSet.load(a.episode_file).episodes
+    by_layout: dict = {}
+    for e in eps:
+        by_layout.setdefault(e.layout_seed, []).append(e)
+    picked = []
+    while len(picked) < a.episodes and any(by_layout.values()):
+        for k in list(by_layout):
+            if by_layout[k] and len(picked) < a.episodes:
+                picked.append(by_layout[k].pop(0))
+    env_cfg = {
+        "width": a.width,
+        "height": a.height,
+        "odom_noise_trans": a.odom_noise,
+        "odom_noise_rot": a.odom_noise,
+    }
+    period = 1000.0 / 10.0
+    res = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "load_avg_start": os.getloadavg(),
+        "env": env_cfg,
+        "episodes": [e.episode_id for e in picked],
+        "configs": {},
+    }
+    for name, cfg in CONFIGS.items():
+        res["configs"][name] = run(cfg, picked, env_cfg, period)
+        r = res["configs"][name]
+        s = r["act_ms"]
+        print(
+            f"{name}: act ms mean {s['mean']:.1f} median {s['median']:.1f} p95 {s['p95']:.1f} "
+            f"p99 {s['p99']:.1f} max {s['max']:.1f}; over {period:.0f} ms: "
+            f"{100 * r['over_period_share']:.2f} %; env step mean {r['env_step_ms']['mean']:.1f} ms",
+            flush=True,
+        )
+    res["load_avg_end"] = os.getloadavg()
+    base = res["configs"]["simn, odometry pose (ablation)"]["act_ms"]["mean"]
+    full = res["configs"]["simn (slam, default)"]["act_ms"]["mean"]
+    res["ratio_mean_to_period"] = full / period
+    res["ratio_mean_to_odometry_ablation"] = full / base
+    print(
+        f"simn mean control step / 100 ms period: {full / period:.2f}; "
+        f"/ odometry ablation: {full / base:.1f}x"
+    )
+    if a.out:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
+        a.out.write_text(json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
