@@ -20,6 +20,12 @@ by least squares on its inliers. Normals come from the organised depth image
 (:func:`normals_from_organized`, central differences) or local PCA over ``normal_k`` neighbours
 (:func:`estimate_normals`). A gentle ramp is therefore floor where it is within ``floor_tol`` of
 the floor and an obstacle above that: the classifier does not reason about climbable slopes.
+
+Stereo depth noise grows with the square of the range, so with the points' ranges (``ranges``)
+the floor band widens with range: ``floor_tol + floor_tol_per_m2 * range^2`` replaces
+``floor_tol`` (and ``obstacle_min_height`` where it is smaller), the steep-normal rule only holds
+where the band is still within ``1.25 floor_tol`` (normals of noisy far floor are noise), and points
+beyond ``max_obstacle_range`` are never obstacles (they are UNKNOWN unless floor).
 """
 
 from __future__ import annotations
@@ -50,6 +56,9 @@ class FloorClassifierConfig(Config):
     min_floor_inliers: int = 50
     normal_k: int = 12  # neighbours for PCA normals
     max_points_fit: int = 20000  # subsample for RANSAC
+    # range-dependent noise (used when classify_points gets the points' ranges)
+    floor_tol_per_m2: float = 0.0  # floor band grows by this x range^2 (m per m^2)
+    max_obstacle_range: float = float("inf")  # farther points are never obstacles
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -66,6 +75,8 @@ class FloorClassifierConfig(Config):
         require(self.min_floor_inliers >= 3, n, "min_floor_inliers", "must be >= 3")
         require(self.normal_k >= 3, n, "normal_k", "must be >= 3")
         require(self.max_points_fit >= 3, n, "max_points_fit", "must be >= 3")
+        require(self.floor_tol_per_m2 >= 0, n, "floor_tol_per_m2", "must be >= 0")
+        require(self.max_obstacle_range > 0, n, "max_obstacle_range", "must be > 0")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,11 +200,14 @@ def classify_points(
     cfg: FloorClassifierConfig | None = None,
     rng: np.random.Generator | None = None,
     plane: tuple[np.ndarray, float] | None = None,
+    ranges: np.ndarray | None = None,
 ) -> SemanticResult:
     """Label (N, 3) points in a z-up frame (world or base); see the module docstring.
 
     normals: (N, 3) (any sign) or None for PCA normals. plane: ``(n, d)`` to skip the fit;
-    otherwise ``cfg.floor_height`` or RANSAC. Raises :class:`FloorNotFoundError` if no floor.
+    otherwise ``cfg.floor_height`` or RANSAC. ranges: (N,) sensor range of each point (the
+    camera-frame depth) for the range-dependent rules, or None. Raises
+    :class:`FloorNotFoundError` if no floor.
     """
     cfg = cfg or FloorClassifierConfig()
     P = _check_points(points).astype(np.float64)
@@ -219,10 +233,21 @@ def classify_points(
     level = has_n & (cos_up >= np.cos(np.radians(cfg.max_floor_normal_deg)))
     steep = has_n & ~level
     labels = np.zeros(len(P), np.int8)
+    tol: float | np.ndarray = cfg.floor_tol
+    h_min: float | np.ndarray = cfg.obstacle_min_height
+    in_range: bool | np.ndarray = True
+    if ranges is not None:
+        r = np.asarray(ranges, dtype=np.float64).reshape(-1)
+        if r.shape != (len(P),):
+            raise ValueError(f"ranges shape {r.shape} != ({len(P)},)")
+        tol = cfg.floor_tol + cfg.floor_tol_per_m2 * r**2
+        h_min = np.maximum(cfg.obstacle_min_height, tol)
+        in_range = r <= cfg.max_obstacle_range
+        steep = steep & (tol <= 1.25 * cfg.floor_tol)
     with np.errstate(invalid="ignore"):
-        near = fin & (np.abs(h) < cfg.floor_tol)
-        body = fin & (h > cfg.obstacle_min_height) & (h <= cfg.robot_height)
-        low_steep = fin & steep & (h >= -cfg.floor_tol) & (h <= cfg.robot_height)
+        near = fin & (np.abs(h) < tol)
+        body = fin & in_range & (h > h_min) & (h <= cfg.robot_height)
+        low_steep = fin & in_range & steep & (h >= -tol) & (h <= cfg.robot_height)
         over = fin & (h > cfg.robot_height)
     labels[near & level] = FLOOR
     labels[body | low_steep] = OBSTACLE

@@ -163,3 +163,41 @@ def test_precision_recall_and_errors() -> None:
         fit_floor_plane(wall)
     with pytest.raises(ConfigError, match="robot_height"):
         FloorClassifierConfig(robot_height=0.01)
+
+
+def test_range_dependent_floor_band_under_stereo_noise() -> None:
+    """Floor points with depth noise growing as range^2 (sigma = 0.004 r^2, like a D435i at
+    320x240) and a 0.3 m box at 2 m: with the ranges, the noisy far floor is no longer an
+    obstacle, the box still is, and nothing beyond max_obstacle_range is an obstacle."""
+    rng = np.random.default_rng(3)
+    cam = np.array([0.0, 0.0, 1.0])
+    xy = rng.uniform([0.5, -3.0], [6.0, 3.0], size=(20000, 2))
+    floor = np.c_[xy, np.zeros(len(xy))]
+    bx = rng.uniform([2.0, -0.2], [2.05, 0.2], size=(500, 2))
+    box = np.c_[bx, rng.uniform(0.0, 0.3, size=len(bx))]
+    P = np.vstack([floor, box])
+    rays = P - cam
+    r = np.linalg.norm(rays, axis=1)
+    P = P + rays / r[:, None] * (rng.normal(size=len(P)) * 0.004 * r**2)[:, None]
+    # normals from noisy depth are noisy too: the error grows with range
+    N = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    N[len(floor) :] = [-1.0, 0.0, 0.0]  # the box face looks back at the camera
+    N = N + rng.normal(size=N.shape) * 0.05 * r[:, None] ** 2
+    is_floor = np.arange(len(P)) < len(floor)
+    cfg = FloorClassifierConfig(floor_height=0.0, floor_tol_per_m2=0.01, max_obstacle_range=3.5)
+    plain = classify_points(P, N, cfg).labels
+    ranged = classify_points(P, N, cfg, ranges=r).labels
+    false_plain = np.mean(plain[is_floor] == OBSTACLE)
+    false_ranged = np.mean(ranged[is_floor] == OBSTACLE)
+    # without ranges the far floor is strewn with obstacles (each inflates to a robot-sized
+    # disc in the collision model); with them, next to none
+    assert false_plain > 0.1
+    assert false_ranged < 0.002
+    # the box (ranges ~2.2 m) is kept: all of it above the widened band (0.09 m there)
+    tall = ~is_floor & (np.r_[np.zeros(len(floor)), box[:, 2]] > 0.15)
+    assert tall.sum() > 200 and np.mean(ranged[tall] == OBSTACLE) > 0.95
+    assert not np.any((ranged == OBSTACLE) & (r > 3.5))
+    with pytest.raises(ValueError, match="ranges"):
+        classify_points(P, N, cfg, ranges=r[:-1])
+    with pytest.raises(ConfigError, match="floor_tol_per_m2"):
+        FloorClassifierConfig(floor_tol_per_m2=-1.0)

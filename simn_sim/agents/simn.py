@@ -72,6 +72,10 @@ class SimnAgentConfig(Config):
         0.9  # a scheduled replan replaces the path only if shorter than this x remaining
     )
     replan_every: int = 10  # control steps between scheduled replans
+    # RRT* iterations per control step for scheduled replans (the robot keeps following its
+    # path meanwhile); 0: the whole budget in one step. Event replans (blocked, stale, no
+    # path) always run the whole budget at once.
+    plan_slice: int = 200
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
     # topological guidance over the local frames (pose_source="slam"): see SimnAgent._subgoal
     topo_guidance: bool = True
@@ -101,6 +105,7 @@ class SimnAgentConfig(Config):
             "must exceed floor_tolerance",
         )
         require(self.replan_every >= 1, n, "replan_every", "must be >= 1")
+        require(self.plan_slice >= 0, n, "plan_slice", "must be >= 0 (0: no slicing)")
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
         require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
@@ -200,6 +205,7 @@ class SimnAgent:
         self._stuck_steps = 0
         self._state = "starting"
         self._plan_ms: float | None = None
+        self._job: dict[str, Any] | None = None  # a scheduled plan being grown over steps
         self._map_ms: float | None = None
         self._track_ms: float | None = None
         self.slam = None
@@ -360,51 +366,60 @@ class SimnAgent:
         self._route_kind = r.kind
         return np.asarray(r.xy, float)
 
-    def _plan(self, xy: np.ndarray, scheduled: bool = False) -> None:
-        """Plan from ``xy`` to the (sub-)goal. A scheduled replan keeps the current path unless
-        the new one is shorter than ``switch_gain`` x the remaining length (no dithering between
-        equivalent RRT* solutions); an event replan (blocked, stale, no path) always replaces it."""
-        t = time.perf_counter()
+    def _begin_plan(self, xy: np.ndarray) -> dict[str, Any] | None:
+        """A new RRT* plan from ``xy`` to the (sub-)goal, begun but not grown (None when the
+        start or the goal cannot be made free)."""
         goal = self._subgoal(xy)
         if not self.checker.is_free(goal[None])[0]:
             alt = self._nearest_free(goal)
             goal = alt if alt is not None else goal
         start = xy
-        if not self.checker.is_free(xy[None])[
-            0
-        ]:  # inside the margin: start from the nearest free point
+        if not self.checker.is_free(xy[None])[0]:  # inside the margin: nearest free point
             alt = self._nearest_free(xy, radius=0.5)
             start = alt if alt is not None else xy
+        if not (self.checker.is_free(start[None])[0] and self.checker.is_free(goal[None])[0]):
+            return None
+        if self.cfg.planner == "goal_vector":
+            planner = goal_vector_rrt_star(
+                self.checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng
+            )
+        else:
+            lo = np.minimum(xy, goal) - self.cfg.window
+            hi = np.maximum(xy, goal) + self.cfg.window
+            b = self.checker.obstacle_bounds()
+            if b is not None:
+                lo = np.minimum(lo, [b[0], b[1]])
+                hi = np.maximum(hi, [b[2], b[3]])
+            planner = uniform_rrt_star(
+                self.checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng
+            )
+        planner.begin(start, goal)
+        return {"planner": planner, "xy": xy.copy(), "start": start, "goal": goal}
+
+    def _finish_plan(self, job: dict[str, Any] | None, xy: np.ndarray, scheduled: bool) -> None:
+        """Take the grown plan (grid fallback when RRT* found nothing). A scheduled replan keeps
+        the current path unless the new one is shorter than ``switch_gain`` x the remaining
+        length (no dithering between equivalent RRT* solutions) or was invalidated by the map
+        growing while it was computed; an event replan (blocked, stale, no path) always
+        replaces it."""
         path = None
         self.tree_edges = None
-        if self.checker.is_free(start[None])[0] and self.checker.is_free(goal[None])[0]:
-            if self.cfg.planner == "goal_vector":
-                planner = goal_vector_rrt_star(
-                    self.checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng
-                )
-            else:
-                lo = np.minimum(xy, goal) - self.cfg.window
-                hi = np.maximum(xy, goal) + self.cfg.window
-                b = self.checker.obstacle_bounds()
-                if b is not None:
-                    lo = np.minimum(lo, [b[0], b[1]])
-                    hi = np.maximum(hi, [b[2], b[3]])
-                planner = uniform_rrt_star(
-                    self.checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng
-                )
-            path = planner.plan(start, goal)
+        if job is not None:
+            planner, start = job["planner"], job["start"]
+            path = planner.finish()
             if path is None:  # RRT* budget exhausted: complete grid search on the same checker
-                path = grid_shortest_path(self.checker, start, goal, self.rng)
+                path = grid_shortest_path(self.checker, start, job["goal"], self.rng)
                 self.fallback_plans += int(path is not None)
-            if path is not None and start is not xy:
-                path = np.vstack([xy, path])
+            if path is not None and start is not job["xy"]:
+                path = np.vstack([job["xy"], path])
+            if path is not None and scheduled and not self.checker.path_free(path[1:]):
+                path = None  # the map grew across it while it was grown over several steps
             tree = planner.tree
             if tree is not None and len(tree) > 1:
                 par = np.asarray(tree.parent[: len(tree)])
                 ok = par >= 0
                 xy_t = np.asarray(tree.xy[: len(tree)])
                 self.tree_edges = np.stack([xy_t[ok], xy_t[par[ok]]], axis=1)
-        self._plan_ms = (time.perf_counter() - t) * 1e3
         self.since_plan = 0
         if scheduled and self.path is not None:
             if path is None or _length(path) >= self.cfg.switch_gain * self._remaining(xy):
@@ -417,6 +432,33 @@ class SimnAgent:
             self.path = path
             self.follower.set_path(path)
             self._state = "following"
+
+    def _plan(self, xy: np.ndarray, scheduled: bool = False) -> None:
+        """Plan now, the whole iteration budget in this control step (cancels a sliced plan)."""
+        t = time.perf_counter()
+        self._job = None
+        job = self._begin_plan(xy)
+        if job is not None:
+            job["planner"].iterate(self.cfg.rrt.max_iterations)
+        self._finish_plan(job, xy, scheduled)
+        self._plan_ms = (self._plan_ms or 0.0) + (time.perf_counter() - t) * 1e3
+
+    def _plan_sliced(self, xy: np.ndarray) -> None:
+        """A scheduled replan spread over control steps: ``plan_slice`` RRT* iterations per
+        step while the robot keeps following its current path (the same rng and budget give
+        the same tree as one call; the control step stays short)."""
+        t = time.perf_counter()
+        if self._job is None:
+            self._job = self._begin_plan(xy)
+            if self._job is None:
+                self._finish_plan(None, xy, scheduled=True)
+                self._plan_ms = (time.perf_counter() - t) * 1e3
+                return
+        job = self._job
+        if job["planner"].iterate(self.cfg.plan_slice):
+            self._job = None
+            self._finish_plan(job, xy, scheduled=True)
+        self._plan_ms = (time.perf_counter() - t) * 1e3
 
     def _remaining(self, xy: np.ndarray) -> float:
         """Length of the current path from the robot's nearest vertex on."""
@@ -512,8 +554,11 @@ class SimnAgent:
         self.since_plan += 1
         if self.path is None:
             self._plan(xy)
-        elif self.since_plan >= self.cfg.replan_every:
-            self._plan(xy, scheduled=True)
+        elif self._job is not None or self.since_plan >= self.cfg.replan_every:
+            if self.cfg.plan_slice > 0:
+                self._plan_sliced(xy)
+            else:
+                self._plan(xy, scheduled=True)
         if self.path is None:  # look around: turning reveals more of the map
             return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
         cmd = self.follower.step(pose)
