@@ -275,32 +275,125 @@ def test_node_index_matches_brute_force() -> None:
     assert 3 < idx.rebuilds < 40  # log-structured: geometric rebuilds
 
 
-def test_adaptive_rays_widen_on_stall_and_reset_on_progress() -> None:
+def test_adaptive_rays_widen_per_anchor_on_stall_and_reset_on_progress() -> None:
     cfg = GoalVectorConfig(
-        n_rays=4, adaptive_rays=True, initial_rays=1, stall_samples=10, progress_min=0.05
+        n_rays=4,
+        adaptive_rays=True,
+        initial_rays=1,
+        stall_samples=10,
+        progress_min=0.05,
+        uniform_fraction=0.0,
+        tree_anchor_fraction=0.0,
+        frontier_anchor_fraction=1.0,
     )
     start, goal = np.array([0.0, 0.0]), np.array([6.0, 0.0])
     smp = GoalVectorSampler(cfg, record=True)
     smp.reset(start, goal, np.random.default_rng(0))
     tree = Tree(start)
     levels = []
-    for _ in range(60):  # the tree never grows: no progress, the fan opens one pair per 10
+    for _ in range(60):  # the tree never grows: every sample from the start is fruitless
         smp.sample(tree)
         levels.append(smp.level)
-    assert levels[0] == 1 and levels[-1] == 4 and sorted(levels) == levels
+    # sample i sees i fruitless samples before it: level 1 + i // 10, capped at n_rays
+    assert levels == [min(4, 1 + i // 10) for i in range(60)]
+    assert smp.visits == [59]  # the 60th sample is judged at the next call
     rays = np.array([rec[1] for rec in smp.log])
-    ray_ok = rays != GoalVectorSampler.UNIFORM_RAY
-    assert np.all(np.abs(rays[:9][ray_ok[:9]]) <= 1)
-    assert np.any(np.abs(rays[30:][ray_ok[30:]]) >= 3)
-    tree.add(np.array([1.0, 0.0]), 0, 1.0)  # progress towards the goal
+    assert np.all(np.abs(rays[:10]) <= 1) and np.any(np.abs(rays[30:]) >= 3)
+    # progress: a new node nearer the goal than the anchor; it is the fresh frontier
+    tree.add(np.array([1.0, 0.0]), 0, 1.0)
     smp.sample(tree)
-    assert smp.level == 1 and smp.best_index == 1 and smp.best_distance == pytest.approx(5.0)
-    # the frontier anchor is the node nearest the goal
-    f = GoalVectorSampler(
-        cfg.replace(frontier_anchor_fraction=1.0, tree_anchor_fraction=0.0), record=True
+    assert smp.visits == [59, 0]  # the anchor of the last sample was not charged
+    assert smp.anchor_index == 1 and smp.level == 1
+    assert smp.best_index == 1 and smp.best_distance == pytest.approx(5.0)
+    np.testing.assert_allclose(smp.log[-1][0], [1.0, 0.0])
+    # a node that does not get closer (sideways) charges the anchor a visit
+    tree.add(np.array([1.0, 0.5]), 1, 0.5)
+    smp.sample(tree)
+    assert smp.visits[1] == 1 and smp.h[2] == pytest.approx(math.hypot(5.0, 0.5))
+
+
+def test_best_first_frontier_hands_over_from_a_blocked_node() -> None:
+    """The frontier is argmin h + visit_penalty * visits: a node nearest the goal that keeps
+    failing hands over to the next one once its penalty exceeds the distance difference."""
+    cfg = GoalVectorConfig(
+        uniform_fraction=0.0,
+        tree_anchor_fraction=0.0,
+        frontier_anchor_fraction=1.0,
+        visit_penalty=0.1,
+        stall_samples=2,
     )
-    f.reset(start, goal, np.random.default_rng(1))
-    for _ in range(20):
-        f.sample(tree)
-    ray_recs = [rec for rec in f.log if rec[1] != GoalVectorSampler.UNIFORM_RAY]
-    assert len(ray_recs) > 10 and all(np.allclose(rec[0], [1.0, 0.0]) for rec in ray_recs)
+    start, goal = np.array([0.0, 0.0]), np.array([10.0, 0.0])
+    tree = Tree(start)
+    tree.add(np.array([5.0, 0.0]), 0, 5.0)  # h = 5 (stuck behind a wall, say)
+    tree.add(np.array([4.0, 3.0]), 0, 5.0)  # h = sqrt(45) = 6.708
+    smp = GoalVectorSampler(cfg, record=True)
+    smp.reset(start, goal, np.random.default_rng(3))
+    anchors = []
+    for _ in range(40):  # the tree never grows: every sample is fruitless
+        smp.sample(tree)
+        anchors.append(smp.anchor_index)
+    h1, h2 = 5.0, math.hypot(6.0, 3.0)
+    n1 = math.ceil((h2 - h1) / cfg.visit_penalty)  # fruitless samples until node 2 takes over
+    assert anchors[:n1] == [1] * n1 and anchors[n1] == 2
+    assert set(anchors) == {1, 2}  # the start (h = 10) is never the frontier here
+    # from then on the two alternate so that their scores stay within one penalty step
+    s1 = h1 + cfg.visit_penalty * smp.visits[1]
+    s2 = h2 + cfg.visit_penalty * smp.visits[2]
+    assert abs(s1 - s2) <= cfg.visit_penalty + 1e-9
+    # every ray sample lies on its anchor's ray k within the jitter, and the fan of each
+    # anchor is the one its visits allow
+    visits_before = {1: 0, 2: 0}
+    for rec, a in zip(smp.log, anchors, strict=True):
+        anchor, k, t, lat, dth = rec
+        np.testing.assert_allclose(anchor, tree.xy[a])
+        assert abs(k) <= min(cfg.n_rays, cfg.initial_rays + visits_before[a] // cfg.stall_samples)
+        visits_before[a] += 1
+    # visit_penalty = 0: always the node nearest the goal
+    smp0 = GoalVectorSampler(cfg.replace(visit_penalty=0.0))
+    smp0.reset(start, goal, np.random.default_rng(3))
+    for _ in range(40):
+        smp0.sample(tree)
+        assert smp0.anchor_index == 1
+
+
+def test_goal_vector_sampler_is_deterministic_per_generator() -> None:
+    start, goal = np.array([0.0, 0.0]), np.array([6.0, 2.0])
+
+    def draw(seed: int) -> np.ndarray:
+        smp = GoalVectorSampler(GoalVectorConfig(), bounds=(-5.0, -5.0, 12.0, 8.0))
+        smp.reset(start, goal, np.random.default_rng(seed))
+        tree = Tree(start)
+        out = []
+        for i in range(700):  # crosses several batch refills (16, 32, ..., 256)
+            x = smp.sample(tree)
+            out.append(x)
+            if i % 3 == 0:  # grow the tree a little, deterministically
+                tree.add(0.5 * (x + tree.xy[i % tree.n]), i % tree.n, 0.1)
+        return np.array(out)
+
+    a, b, c = draw(5), draw(5), draw(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert np.all(np.isfinite(a))
+    # reset() restarts the stream state (same generator seed -> same samples)
+    smp = GoalVectorSampler(GoalVectorConfig())
+    smp.reset(start, goal, np.random.default_rng(1))
+    first = [smp.sample(Tree(start)).copy() for _ in range(5)]
+    smp.reset(start, goal, np.random.default_rng(1))
+    again = [smp.sample(Tree(start)).copy() for _ in range(5)]
+    np.testing.assert_array_equal(first, again)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("visit_penalty", -0.1),
+        ("visit_penalty", float("nan")),
+        ("stall_samples", 0),
+        ("initial_rays", 7),
+        ("progress_min", -1.0),
+    ],
+)
+def test_goal_vector_config_errors_name_the_field(field: str, value) -> None:
+    with pytest.raises(ConfigError, match=field):
+        GoalVectorConfig(**{field: value})

@@ -19,7 +19,9 @@ All samplers draw in batches from an explicit ``np.random.Generator`` (one RNG c
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
+import heapq
 import math
 from typing import NamedTuple, Protocol
 
@@ -63,12 +65,18 @@ class GoalVectorConfig(Config):
     frontier_anchor_fraction: float = 0.5
     """Fraction of ray samples cast from the tree node nearest the goal (the frontier)."""
     adaptive_rays: bool = True
-    """Start with the rays |k| <= initial_rays and open one more pair of alternative rays per
-    ``stall_samples`` samples in which the tree got no closer to the goal (by
-    ``progress_min``); back to ``initial_rays`` on progress. False: all rays always."""
+    """Per-anchor fan: rays cast from a tree node are ``|k| <= initial_rays +
+    visits // stall_samples``, where ``visits`` counts the samples cast from that node that
+    brought the tree no closer to the goal (by ``progress_min``): a fresh node aims at the goal,
+    a blocked one widens its fan one ray pair per ``stall_samples`` fruitless samples. False:
+    all rays always."""
     initial_rays: int = 1
-    stall_samples: int = 10
+    stall_samples: int = 2
     progress_min: float = 0.05
+    visit_penalty: float = 0.05
+    """Best-first frontier: the frontier anchor is the tree node with the smallest
+    ``distance to goal + visit_penalty * visits`` (metres per fruitless sample cast from it);
+    0 = always the node nearest the goal."""
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -116,6 +124,12 @@ class GoalVectorConfig(Config):
         require(self.stall_samples >= 1, n, "stall_samples", ">= 1")
         require(
             math.isfinite(self.progress_min) and self.progress_min >= 0, n, "progress_min", ">= 0"
+        )
+        require(
+            math.isfinite(self.visit_penalty) and self.visit_penalty >= 0,
+            n,
+            "visit_penalty",
+            ">= 0",
         )
 
     def ray_offsets(self) -> np.ndarray:
@@ -226,21 +240,33 @@ class UniformSampler(_Batched):
 class GoalVectorSampler:
     """Goal-vector ray samples (plus an optional uniform fraction over a local window).
 
-    The rays start at an *anchor*: the frontier (the tree node nearest the goal) with probability
-    ``cfg.frontier_anchor_fraction``, a random tree node with ``cfg.tree_anchor_fraction``, else
-    the start (the robot, as in the paper), so the goal vector is also cast from places the tree
-    has already reached (around a wall, through a doorway). With ``cfg.adaptive_rays`` only the
-    rays ``|k| <= level`` are drawn; ``level`` opens while the frontier stalls (see
-    :class:`GoalVectorConfig`). Both anchor fractions 0 and ``adaptive_rays=False`` is the
-    paper's sampler.
+    The rays start at an *anchor*: the frontier with probability ``cfg.frontier_anchor_fraction``,
+    a random tree node with ``cfg.tree_anchor_fraction``, else the start (the robot, as in the
+    paper), so the goal vector is also re-cast from places the tree has already reached (around a
+    wall, through a doorway).
 
-    Random numbers are drawn in batches from the generator given to :meth:`reset`. If
-    ``record`` is set, every sample is logged in ``self.log`` as
-    ``(anchor (2,), ray k, t, lateral, dtheta)`` (ray ``UNIFORM_RAY`` for uniform samples).
+    The frontier is chosen best-first: the tree node with the smallest
+    ``distance to the goal + visit_penalty * visits``, where ``visits`` counts the samples cast
+    from that node that brought the tree no closer to the goal (the node's extension was
+    blocked, or only grew sideways). A node stuck against a wall therefore hands over to its
+    neighbours along the wall and, in a dead end, to nodes farther back, instead of drawing every
+    frontier sample into the wall. With ``cfg.adaptive_rays`` the fan cast from an anchor has the
+    rays ``|k| <= initial_rays + visits // stall_samples``: rays from a fresh node point at the
+    goal, and the fan widens as that node's samples keep failing. ``visit_penalty = 0`` keeps the
+    frontier at the node nearest the goal; both anchor fractions 0 and ``adaptive_rays=False`` is
+    the paper's sampler.
+
+    Failure is observed, not told: the planner passes its tree to :meth:`sample`, and a sample
+    whose iteration added no node nearer the goal than its anchor (by ``progress_min``) counts
+    as a visit of that anchor. Random numbers are drawn in batches from the generator given to
+    :meth:`reset`; the sampler is deterministic for a given generator and tree. If ``record`` is
+    set, every sample is logged in ``self.log`` as ``(anchor (2,), ray k, t, lateral, dtheta)``
+    (ray ``UNIFORM_RAY`` for uniform samples).
     """
 
     UNIFORM_RAY = -999
     batch = 256
+    first_batch = 16
 
     def __init__(
         self,
@@ -254,55 +280,84 @@ class GoalVectorSampler:
         self.log: list[tuple[np.ndarray, int, float, float, float]] = []
         self.start = np.zeros(2)
         self.goal = np.zeros(2)
+        self._gx = self._gy = 0.0
         self._rng: np.random.Generator | None = None
         self._k = self._n = 0
         ks = self.cfg.ray_offsets()
         w = self.cfg.ray_decay ** np.abs(ks).astype(np.float64)
-        self._ks = ks
+        self._ks = ks.tolist()
         # cumulative ray weights for each number of open ray pairs L (rays |k| <= L)
-        self._cdf = [np.cumsum(w[: 2 * L + 1]) / w[: 2 * L + 1].sum() for L in range(len(ks))]
-        self.level = self.cfg.n_rays
-        """Open ray pairs: rays |k| <= level are sampled."""
-        self.best_index = 0
-        """Tree node nearest the goal so far (the frontier)."""
-        self.best_distance = math.inf
-        self._ref = math.inf
-        self._seen = 0
-        self._stall = 0
+        self._cdf = [
+            (np.cumsum(w[: 2 * L + 1]) / w[: 2 * L + 1].sum()).tolist() for L in range(len(ks))
+        ]
+        self._batch_next = self.first_batch
         self._alpha = math.radians(self.cfg.alpha_deg)
         self._spread = math.radians(self.cfg.angular_spread_deg)
+        self._clear()
+
+    def _clear(self) -> None:
+        self.level = self.cfg.n_rays
+        """Open ray pairs of the last ray sample (rays |k| <= level)."""
+        self.best_index = 0
+        """Tree node nearest the goal so far."""
+        self.best_distance = math.inf
+        self.anchor_index = -1
+        """Tree node the last ray sample was cast from (-1: uniform sample, or no tree)."""
+        self.h: list[float] = []
+        """Distance to the goal of every tree node seen so far (index = node index)."""
+        self.visits: list[int] = []
+        """Per tree node: samples cast from it that brought the tree no closer to the goal."""
+        self._xy: list[list[float]] = []
+        self._heap: list[tuple[float, int]] = []
+        self._seen = 0
 
     def reset(self, start: np.ndarray, goal: np.ndarray, rng: np.random.Generator) -> None:
         self._rng = rng
         self.start = np.asarray(start, dtype=np.float64).copy()
         self.goal = np.asarray(goal, dtype=np.float64).copy()
+        self._gx, self._gy = self.goal.tolist()
         self._k = self._n = 0
+        self._batch_next = self.first_batch
         self.log = []
-        self.level = self.cfg.initial_rays if self.cfg.adaptive_rays else self.cfg.n_rays
-        self.best_index, self.best_distance = 0, math.inf
-        self._ref = math.inf
-        self._seen = self._stall = 0
+        self._clear()
+
+    @property
+    def frontier(self) -> int:
+        """The best-first frontier node: smallest ``h + visit_penalty * visits`` (0 if none)."""
+        heap, pen = self._heap, self.cfg.visit_penalty
+        while heap:
+            score, i = heap[0]
+            if score == self.h[i] + pen * self.visits[i]:
+                return i
+            heapq.heappop(heap)  # stale entry (the node was visited since)
+        return 0
 
     def _refill(self) -> None:
+        """Draw the next batch of random numbers: one generator call of (9, n) uniforms. The
+        batch doubles from ``first_batch`` up to ``batch`` (short plans draw little)."""
         assert self._rng is not None, "call reset() first"
-        rng, n, cfg = self._rng, self.batch, self.cfg
-        self._ray_u = rng.random(n)
-        self._f = rng.random(n) ** cfg.radial_power
-        self._lat = rng.uniform(-cfg.lateral_spread, cfg.lateral_spread, size=n)
-        self._jit = rng.uniform(-self._spread, self._spread, size=n)
-        self._anchor_u = rng.random(n)
-        self._node_u = rng.random(n)
-        self._unif_u = rng.random(n)
+        cfg = self.cfg
+        n = self._batch_next
+        self._batch_next = min(2 * n, self.batch)
+        u = self._rng.random((9, n))
+        u[1] **= cfg.radial_power
+        u[2] = (2.0 * u[2] - 1.0) * cfg.lateral_spread
+        u[3] = (2.0 * u[3] - 1.0) * self._spread
         lo = np.minimum(self.start, self.goal) - cfg.uniform_margin
         hi = np.maximum(self.start, self.goal) + cfg.uniform_margin
         if self.bounds is not None:
             lo = np.clip(lo, self.bounds[:2], self.bounds[2:])
             hi = np.clip(hi, self.bounds[:2], self.bounds[2:])
-        self._unif = rng.uniform(lo, np.maximum(hi, lo + 1e-6), size=(n, 2))
+        hi = np.maximum(hi, lo + 1e-6)
+        self._unif = lo + u[7:].T * (hi - lo)
+        (self._ray_u, self._f, self._lat, self._jit, self._anchor_u, self._node_u, self._unif_u) = (
+            u[:7].tolist()
+        )
         self._k, self._n = 0, n
 
     def sample(self, tree: Tree | None = None) -> np.ndarray:
-        """One (2,) sample; ``tree`` (the planner's tree) enables tree anchors."""
+        """One (2,) sample; ``tree`` (the planner's tree) enables tree anchors and the
+        best-first frontier."""
         if self._k >= self._n:
             self._refill()
         k = self._k
@@ -310,51 +365,74 @@ class GoalVectorSampler:
         cfg = self.cfg
         if tree is not None:
             self._track(tree)
+        elif not self.h:  # no tree: the start stands for node 0
+            self._add_node(0, self.start.tolist())
+        else:
+            self._visit(self.anchor_index)
         if self._unif_u[k] < cfg.uniform_fraction:
+            self.anchor_index = -1
             x = self._unif[k]
             if self.record:
                 self.log.append((x.copy(), self.UNIFORM_RAY, 0.0, 0.0, 0.0))
             return x
-        ray = int(self._ks[int(np.searchsorted(self._cdf[self.level], self._ray_u[k]))])
-        anchor = self.start
         u = self._anchor_u[k]
+        a = 0
         if tree is not None and tree.n > 1:
             if u < cfg.frontier_anchor_fraction:
-                anchor = tree.xy[self.best_index]
+                a = self.frontier
             elif u < cfg.frontier_anchor_fraction + cfg.tree_anchor_fraction:
-                anchor = tree.xy[int(self._node_u[k] * tree.n)]
-        dx, dy = self.goal[0] - anchor[0], self.goal[1] - anchor[1]
-        dist = math.hypot(dx, dy)
-        th = (math.atan2(dy, dx) if dist > 1e-12 else 0.0) + ray * self._alpha
-        th += self._jit[k]
+                a = int(self._node_u[k] * tree.n)
+        self.anchor_index = a
+        level = cfg.n_rays
+        if cfg.adaptive_rays:
+            level = min(level, cfg.initial_rays + self.visits[a] // cfg.stall_samples)
+        self.level = level
+        cdf = self._cdf[level]
+        ray = self._ks[min(bisect.bisect_left(cdf, self._ray_u[k]), len(cdf) - 1)]
+        ax, ay = self._xy[a]
+        dist = self.h[a]
+        if dist > 1e-12:
+            th = math.atan2(self._gy - ay, self._gx - ax)
+        else:
+            th = 0.0
+        jit = self._jit[k]
+        th += ray * self._alpha + jit
         t = self._f[k] * max(cfg.min_range, cfg.range_scale * dist)
         lat = self._lat[k]
         c, s = math.cos(th), math.sin(th)
-        x = np.array([anchor[0] + t * c - lat * s, anchor[1] + t * s + lat * c])
+        x = np.array([ax + t * c - lat * s, ay + t * s + lat * c])
         if self.record:
-            self.log.append((anchor.copy(), ray, t, lat, float(self._jit[k])))
+            self.log.append((np.array([ax, ay]), ray, t, lat, jit))
         return x
 
-    def _track(self, tree: Tree) -> None:
-        """Update the frontier from nodes added since the last call; widen/narrow the rays."""
-        cfg = self.cfg
-        if tree.n > self._seen:
-            new = tree.xy[self._seen : tree.n]
-            d = np.hypot(new[:, 0] - self.goal[0], new[:, 1] - self.goal[1])
-            i = int(np.argmin(d))
-            improved = d[i] < self._ref - cfg.progress_min
-            if improved:
-                self._ref = float(d[i])
-            if d[i] < self.best_distance:
-                self.best_index, self.best_distance = self._seen + i, float(d[i])
-            self._seen = tree.n
-        else:
-            improved = False
-        if not cfg.adaptive_rays:
+    def _add_node(self, i: int, xy: list[float]) -> float:
+        h = math.hypot(xy[0] - self._gx, xy[1] - self._gy)
+        self._xy.append(xy)
+        self.h.append(h)
+        self.visits.append(0)
+        heapq.heappush(self._heap, (h, i))
+        if h < self.best_distance:
+            self.best_index, self.best_distance = i, h
+        return h
+
+    def _visit(self, a: int) -> None:
+        """One more fruitless sample cast from node ``a`` (raises its frontier score)."""
+        if a < 0:
             return
-        if improved:
-            self._stall = 0
-            self.level = cfg.initial_rays
-        else:
-            self._stall += 1
-            self.level = min(cfg.n_rays, cfg.initial_rays + self._stall // cfg.stall_samples)
+        self.visits[a] += 1
+        heapq.heappush(self._heap, (self.h[a] + self.cfg.visit_penalty * self.visits[a], a))
+
+    def _track(self, tree: Tree) -> None:
+        """Take in the nodes added since the last call; charge the last anchor a visit unless
+        one of them got closer to the goal than the anchor (by ``progress_min``)."""
+        n = tree.n
+        a = self.anchor_index
+        if n <= self._seen:
+            self._visit(a)
+            return
+        h_min = math.inf
+        for i, xy in enumerate(tree.xy[self._seen : n].tolist(), self._seen):
+            h_min = min(h_min, self._add_node(i, xy))
+        self._seen = n
+        if a >= 0 and not h_min < self.h[a] - self.cfg.progress_min:
+            self._visit(a)
