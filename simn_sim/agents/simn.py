@@ -65,8 +65,15 @@ class SimnAgentConfig(Config):
     # iteration budget only (no wall-clock budget): the same seed gives the same plans
     rrt: RRTStarConfig = RRTStarConfig(time_budget_ms=0.0, max_iterations=600)
     goal_vector: GoalVectorConfig = GoalVectorConfig()
+    # turn in place while the path bearing exceeds 30 deg (about the camera's half horizontal
+    # field of view at 320x240): the robot drives only towards space it has in view
     follower: FollowerConfig = FollowerConfig(
-        lookahead=0.5, v_max=0.8, goal_tolerance=0.15, slow_clearance=0.3, min_clearance_scale=0.5
+        lookahead=0.5,
+        v_max=0.8,
+        goal_tolerance=0.15,
+        slow_clearance=0.3,
+        min_clearance_scale=0.5,
+        turn_in_place_deg=30.0,
     )
     switch_gain: float = (
         0.9  # a scheduled replan replaces the path only if shorter than this x remaining
@@ -76,6 +83,11 @@ class SimnAgentConfig(Config):
     # path meanwhile); 0: the whole budget in one step. Event replans (blocked, stale, no
     # path) always run the whole budget at once.
     plan_slice: int = 200
+    # look around before the first plan: turn in place by this angle (deg) at the start of an
+    # episode so the map holds the robot's surroundings (what lies beside and behind it at the
+    # start is otherwise first seen when the robot turns into it); 0: no scan
+    initial_scan_deg: float = 360.0
+    scan_rate: float = 1.2  # rad/s while scanning
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
     # topological guidance over the local frames (pose_source="slam"): see SimnAgent._subgoal
     topo_guidance: bool = True
@@ -106,6 +118,8 @@ class SimnAgentConfig(Config):
         )
         require(self.replan_every >= 1, n, "replan_every", "must be >= 1")
         require(self.plan_slice >= 0, n, "plan_slice", "must be >= 0 (0: no slicing)")
+        require(0 <= self.initial_scan_deg <= 720, n, "initial_scan_deg", "must be in [0, 720]")
+        require(self.scan_rate > 0, n, "scan_rate", "must be > 0")
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
         require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
@@ -206,6 +220,10 @@ class SimnAgent:
         self._state = "starting"
         self._plan_ms: float | None = None
         self._job: dict[str, Any] | None = None  # a scheduled plan being grown over steps
+        w_scan = min(self.cfg.scan_rate, self.follower_cfg.w_max)
+        self._scan_steps = int(
+            math.ceil(math.radians(self.cfg.initial_scan_deg) / (w_scan * self.control_dt))
+        )
         self._map_ms: float | None = None
         self._track_ms: float | None = None
         self.slam = None
@@ -551,6 +569,10 @@ class SimnAgent:
             self.path = None
             target = self._nearest_free(xy, radius=0.6)
             return self._escape(pose) if target is None else self._drive_to(pose, target)
+        if self._scan_steps > 0:  # initial look-around (turning in place sweeps no new space)
+            self._scan_steps -= 1
+            self._state = "scanning"
+            return np.array([0.0, min(self.cfg.scan_rate, self.follower_cfg.w_max)], np.float32)
         self.since_plan += 1
         if self.path is None:
             self._plan(xy)
