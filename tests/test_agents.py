@@ -70,3 +70,53 @@ def test_simn_act_is_within_bounds_and_never_reads_true_pose(env):
         a = agent.act(obs)  # no info: the agent must not need the true pose
         assert np.all(a >= lo - 1e-6) and np.all(a <= hi + 1e-6)
         obs, *_ = env.step(a)
+
+
+def _room_with_box_behind_start():
+    """A 12 x 8 m walled room; the robot starts at (6, 4) facing +x; a 0.6 m cube stands 1.8 m
+    behind it, outside the camera's view until the robot turns."""
+    from simn_sim.env.layout import Box, Layout, Room
+
+    t, g = 0.075, (0.8, 0.8, 0.8, 1)
+    boxes = [
+        Box("s", "wall", -1, (6.0, 0.0, 1.3), (6.0 + t, t, 1.3), 0.0, g),
+        Box("n", "wall", -1, (6.0, 8.0, 1.3), (6.0 + t, t, 1.3), 0.0, g),
+        Box("w", "wall", -1, (0.0, 4.0, 1.3), (t, 4.0 + t, 1.3), 0.0, g),
+        Box("e", "wall", -1, (12.0, 4.0, 1.3), (t, 4.0 + t, 1.3), 0.0, g),
+        Box("cube", "box", 0, (4.2, 4.0, 0.3), (0.3, 0.3, 0.3), 0.0, (0.6, 0.3, 0.2, 1)),
+    ]
+    return Layout(98, (12.0, 8.0), [Room("r", 0, 0, 12, 8)], [], boxes)
+
+
+@pytest.mark.parametrize("scan", [0.0, 360.0])
+def test_initial_scan_maps_what_stands_behind_the_start(scan):
+    import simn_sim.env.office as office
+    from simn_sim.env.office import SimnOfficeEnv
+
+    layout = _room_with_box_behind_start()
+    e = SimnOfficeEnv(config={"width": 160, "height": 120})
+    orig = office.load_layout
+    office.load_layout = lambda seed: layout
+    try:
+        e._layout_key = object()
+        e._load_layout(None)
+    finally:
+        office.load_layout = orig
+    ep = {"episode_id": "scan", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [10.0, 4.0]}
+    obs, info = e.reset(options={"episode": ep})
+    agent = make_agent("simn", e, {"initial_scan_deg": scan})
+    agent.reset(obs, info)
+    n_scan = int(np.ceil(np.radians(scan) / (agent.cfg.scan_rate * e.dt)))
+    for _ in range(n_scan):
+        a = agent.act(obs)
+        assert a[0] == 0.0 and a[1] > 0  # turning in place only
+        obs, _, _, _, info = e.step(a)
+    # the cube's centre in the agent's (start) frame: 1.8 m behind the robot
+    cube_xy = np.array([[-1.8, 0.0]])
+    clearance = float(agent.checker.clearance(cube_xy)[0])
+    if scan:
+        assert clearance < 0.1  # its faces (0.3 m from the centre) are in the collision model
+        assert np.hypot(*(info["T_world_base"][:2, 3] - [6.0, 4.0])) < 0.02  # no translation
+    else:
+        assert clearance > 1.0  # never in view: unknown, so free
+    e.close()
