@@ -61,6 +61,22 @@ class SlamConfig(Config):
     # a point further than this from the surface store has no SDF (invalid): beyond the
     # store's coverage, nearest-point residuals pull the frame back towards the covered part
     point_sdf_max_dist: float = 0.03
+    # point SDF of the surface store: 0 = the nearest stored point's plane; h > 0 = implicit
+    # MLS surface (Gaussian kernel of width h over the point_sdf_k nearest stored points):
+    # continuous, and zero on the surface of a store that depth noise spread into a slab
+    # (where the nearest point's plane is flat and registration stalls; docs/tracking.md).
+    # Noise-adaptive width: h = clip(point_sdf_kernel_rms_factor x the running inlier RMS of
+    # the registrations, point_sdf_kernel_min, point_sdf_kernel) -- wide on noisy depth, near
+    # the nearest-point SDF on exact depth; factor 0: always point_sdf_kernel
+    point_sdf_kernel: float = 0.03
+    point_sdf_kernel_min: float = 0.005
+    point_sdf_kernel_rms_factor: float = 4.0
+    point_sdf_k: int = 8
+    point_sdf_count_weight: bool = False  # kernel weights times the voxel's observation count
+    point_sdf_normal_gate_deg: float = 60.0  # kernel neighbours within this angle of the
+    # nearest point's normal (keeps creases sharp); 180: all
+    c2f: bool = False  # kernel SDF: register with the widest kernel first, then the adaptive
+    loop_kernel: bool = False  # revisit checks use the tracking kernel too (else nearest point)
     loop_sdf_max_dist: float = 0.15  # validity radius of the point SDF in revisit checks
     sdf_rebuild_growth: float = 0.1  # rebuild the point SDF when the store grew by this share
     # Tracking registration: ``registration`` with these two replaced (the loop-closure check
@@ -135,6 +151,23 @@ class SlamConfig(Config):
         ):
             v = getattr(self, f)
             require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
+        require(
+            math.isfinite(self.point_sdf_kernel) and self.point_sdf_kernel >= 0,
+            n,
+            "point_sdf_kernel",
+            "must be >= 0 (0: nearest point)",
+        )
+        require(self.point_sdf_k >= 1, n, "point_sdf_k", "must be >= 1")
+        require(
+            0 < self.point_sdf_kernel_min <= max(self.point_sdf_kernel, self.point_sdf_kernel_min),
+            n,
+            "point_sdf_kernel_min",
+            "must be > 0 and <= point_sdf_kernel",
+        )
+        require(self.point_sdf_kernel_rms_factor >= 0, n, "point_sdf_kernel_rms_factor", ">= 0")
+        require(
+            0 < self.point_sdf_normal_gate_deg <= 180, n, "point_sdf_normal_gate_deg", "(0, 180]"
+        )
         require(self.normal_smooth_px >= 0, n, "normal_smooth_px", "must be >= 0")
         require(self.track_max_depth > self.min_depth, n, "track_max_depth", "> min_depth")
         require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")

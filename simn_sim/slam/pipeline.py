@@ -153,9 +153,19 @@ class PointFrameMap:
     normals in anchor coordinates; ``sdf_and_grad`` is its point-to-plane SDF. Implements the
     :class:`~simn_sim.tracking.localframes.FrameMap` protocol (no learned features)."""
 
-    def __init__(self, surface: _VoxelStore, max_dist: float = 0.05) -> None:
+    def __init__(
+        self,
+        surface: _VoxelStore,
+        max_dist: float = 0.05,
+        kernel: float = 0.0,
+        k: int = 8,
+        count_weight: bool = False,
+        normal_gate: float = -1.0,
+    ) -> None:
         self.surface = surface
         self.max_dist = float(max_dist)
+        self.kernel, self.k, self.count_weight = float(kernel), int(k), bool(count_weight)
+        self.normal_gate = float(normal_gate)
         self._sdf: PointCloudSDF | None = None
         self._n = -1
 
@@ -167,7 +177,13 @@ class PointFrameMap:
         if self._sdf is None or n > self._n * (1 + rebuild_growth) or n < self._n:
             try:
                 self._sdf = PointCloudSDF(
-                    self.surface.points, self.surface.extra, max_dist=self.max_dist
+                    self.surface.points,
+                    self.surface.extra,
+                    max_dist=self.max_dist,
+                    kernel=self.kernel,
+                    k=self.k,
+                    confidence=self.surface.count if self.count_weight else None,
+                    normal_gate=self.normal_gate,
                 )
             except ValueError:
                 return None
@@ -244,6 +260,7 @@ class SimnSlam:
         self.n_track_failures = 0
         self._hist: list[tuple[float, np.ndarray]] = []  # (t, T_anchor_cam) of the last two
         self._last_prior: np.ndarray | None = None
+        self._rms_ema: float | None = None  # running inlier RMS of the tracking registrations
         self._records: list[tuple[float, int, np.ndarray, np.ndarray]] = []
         self._obst_cache: tuple[tuple, np.ndarray] | None = None
         self._floor_cache: tuple[tuple, np.ndarray] | None = None
@@ -306,9 +323,20 @@ class SimnSlam:
         return tp.astype(np.float32)
 
     # ------------------------------------------------------------------ frames
+    def _point_map(self, surface: _VoxelStore) -> PointFrameMap:
+        c = self.cfg
+        return PointFrameMap(
+            surface,
+            c.point_sdf_max_dist,
+            c.point_sdf_kernel,
+            c.point_sdf_k,
+            c.point_sdf_count_weight,
+            np.cos(np.radians(c.point_sdf_normal_gate_deg)),
+        )
+
     def _new_map(self, surface: _VoxelStore):
         if self.cfg.map_kind == "points":
-            return PointFrameMap(surface, self.cfg.point_sdf_max_dist)
+            return self._point_map(surface)
         if self._base_map is None:
             self._base_map = ImplicitMap(self.cfg.mapper)
             return self._base_map
@@ -326,9 +354,7 @@ class SimnSlam:
             frame,
             _VoxelStore(self.cfg.obstacle_voxel),
             _VoxelStore(self.cfg.floor_voxel),
-            frame.map
-            if isinstance(frame.map, PointFrameMap)
-            else PointFrameMap(surface, self.cfg.point_sdf_max_dist),
+            frame.map if isinstance(frame.map, PointFrameMap) else self._point_map(surface),
         )
         self.topo.add_frame(frame)
         prev = self.current_frame_id
@@ -365,7 +391,29 @@ class SimnSlam:
             return st.frame.map.sdf_and_grad if st.n_trained > 0 else None
         g = self.cfg.sdf_rebuild_growth if growth is None else growth
         sdf = st.surface.point_sdf(g)
-        return None if sdf is None else sdf.sdf_and_grad
+        if sdf is None:
+            return None
+        if sdf.kernel > 0:
+            sdf.kernel = self.track_kernel
+        return sdf.sdf_and_grad
+
+    @property
+    def track_kernel(self) -> float:
+        """Kernel width (m) of the tracking point SDF: ``point_sdf_kernel_rms_factor`` times the
+        running inlier RMS of the registrations, clipped to [``point_sdf_kernel_min``,
+        ``point_sdf_kernel``] (the maximum before the first registration)."""
+        c = self.cfg
+        if c.point_sdf_kernel <= 0:
+            return 0.0
+        if c.point_sdf_kernel_rms_factor <= 0 or self._rms_ema is None:
+            return c.point_sdf_kernel
+        h = c.point_sdf_kernel_rms_factor * self._rms_ema
+        return float(np.clip(h, c.point_sdf_kernel_min, c.point_sdf_kernel))
+
+    def _update_rms(self, rms: float) -> None:
+        if np.isfinite(rms):
+            a = 0.3
+            self._rms_ema = rms if self._rms_ema is None else (1 - a) * self._rms_ema + a * rms
 
     def _track_target(self) -> tuple[int, Any] | None:
         """(frame id, sdf_and_grad) to register against: the current frame's map, or the
@@ -451,6 +499,8 @@ class SimnSlam:
             T_anchor_cam, success, reason, iters, against, rms = self._register(
                 track_pts, T_pred, self._odom_info if use_odom else self._cv_info
             )
+            if success:
+                self._update_rms(rms)
             T_anchor_cam = _rigid(T_anchor_cam)
             T_world_cam = _rigid(A @ T_anchor_cam)
         if not success:
@@ -530,7 +580,7 @@ class SimnSlam:
         T_cur_f = inv_T(self.topo.anchor(cur)) @ self.topo.anchor(fid)
         init = inv_T(T_cur_f) @ T_pred
         try:
-            res = register(pts, sdf, init, self._track_reg, weights=self._point_weights(pts))
+            res = self._register_c2f(pts, sdf, init, self._track_reg)
         except Exception as e:  # noqa: BLE001 - tracking must never raise
             return T_pred, False, f"registration error: {type(e).__name__}: {e}", 0, fid, np.nan
         if not res.success:
@@ -575,6 +625,35 @@ class SimnSlam:
             return T_pred, False, why, res.iterations, fid, res.final_rms
         return T_est, True, reason, res.iterations, fid, res.final_rms
 
+    def _register_c2f(self, pts: np.ndarray, sdf, T_init: np.ndarray, reg_cfg):
+        """Register; on a kernel point SDF coarse to fine: first with the widest kernel
+        (``point_sdf_kernel``: smooth, wide basin), then from there with the noise-adaptive
+        width (:attr:`track_kernel`: on exact depth close to the nearest-point SDF, which
+        keeps the geometry's detail)."""
+        w = self._point_weights(pts)
+        obj = getattr(sdf, "__self__", None)
+        fine = self.track_kernel
+        if not isinstance(obj, PointCloudSDF) or obj.kernel <= 0 or not self.cfg.c2f:
+            return register(pts, sdf, T_init, reg_cfg, weights=w)
+        obj.kernel = self.cfg.point_sdf_kernel
+        res = register(pts, sdf, T_init, reg_cfg, weights=w)
+        if not res.success or fine >= obj.kernel:
+            return res
+        obj.kernel = fine
+        res2 = register(pts, sdf, res.pose, reg_cfg, weights=w)
+        return res2 if res2.success else res
+
+    def _point_sdf(self, P: np.ndarray, N: np.ndarray, max_dist: float) -> PointCloudSDF:
+        c = self.cfg
+        return PointCloudSDF(
+            P,
+            N,
+            max_dist=max_dist,
+            kernel=self.track_kernel,
+            k=c.point_sdf_k,
+            normal_gate=float(np.cos(np.radians(c.point_sdf_normal_gate_deg))),
+        )
+
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the revisit check: against frame ``fid``'s SDF."""
         if self.cfg.track_sdf == "implicit":
@@ -583,11 +662,12 @@ class SimnSlam:
             st = self._states[fid]
             if st.loop_sdf is None or st.loop_sdf[0] != len(st.surface.surface):
                 P, N = st.surface.surface.points, st.surface.surface.extra
-                st.loop_sdf = (len(P), PointCloudSDF(P, N, max_dist=self.cfg.loop_sdf_max_dist))
+                st.loop_sdf = (len(P), self._point_sdf(P, N, self.cfg.loop_sdf_max_dist))
+            st.loop_sdf[1].kernel = self.track_kernel if self.cfg.loop_kernel else 0.0
             sdf = st.loop_sdf[1].sdf_and_grad
         if sdf is None:
             raise ValueError(f"frame {fid} has no map to register against")
-        return register(pts, sdf, T_init, self.cfg.registration, weights=self._point_weights(pts))
+        return self._register_c2f(pts, sdf, T_init, self.cfg.registration)
 
     def _revisit(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
         if len(self._states) <= self.cfg.loop.exclude_recent + 1:

@@ -232,8 +232,12 @@ def register(
         W = np.asarray(_to_numpy(weights), np.float64)
         if W.shape != (len(P),):
             raise ValueError(f"weights must have shape ({len(P)},), got {W.shape}")
-        if not np.isfinite(W).all() or (W < 0).any() or not (W > 0).any():
-            raise ValueError("weights must be finite, >= 0 and not all zero")
+        if not np.isfinite(W).all():
+            raise ValueError("weights contain NaN or inf")
+        if (W < 0).any():
+            raise ValueError(f"weights must be >= 0, got a minimum of {W.min():g}")
+        if not (W > 0).any():
+            raise ValueError("weights are all zero")
     ev_fn = _Evaluator(P, sdf_and_grad, cfg, points_as == "torch", W)
     fail_cov = np.eye(6) * cfg.fail_covariance
 
