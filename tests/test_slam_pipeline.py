@@ -104,7 +104,11 @@ def test_external_prior_defines_world_and_increments(desk):
         gt.append(offset @ fr.T_world_cam)
     np.testing.assert_allclose(est[0], gt[0], atol=1e-9)
     err = max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, gt, strict=True))
-    assert err < 0.01  # registration removed the 1 cm/frame prior drift
+    # registration removed the 1 cm/frame prior drift. The residual (max 8.5 mm with the kernel
+    # point SDF, 10.2 mm with the nearest-point one) is not the prior fusion or the gate
+    # (fuse_prior=False: 10.6 mm, gate_sigmas=0: unchanged) but the registration stopping
+    # short of a 17 mm start offset in frames 2-4, which the map then keeps (docs/slam.md)
+    assert err < 0.01
 
 
 def test_implicit_map_path_runs(desk):
