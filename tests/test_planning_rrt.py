@@ -392,8 +392,94 @@ def test_goal_vector_sampler_is_deterministic_per_generator() -> None:
         ("stall_samples", 0),
         ("initial_rays", 7),
         ("progress_min", -1.0),
+        ("open_step", 0.0),
+        ("open_step", float("inf")),
+        ("open_initial_rays", 7),
+        ("open_visits", -1),
+        ("ray_overshoot", -0.5),
+        ("ray_overshoot", float("nan")),
     ],
 )
 def test_goal_vector_config_errors_name_the_field(field: str, value) -> None:
     with pytest.raises(ConfigError, match=field):
         GoalVectorConfig(**{field: value})
+
+
+# Checker-aware sampling: from (4.4, 1.5) beside the doorway map's wall (x = 5, inflated to
+# x >= 4.75), rays towards the goal at 0 and +-30 deg hit the wall within 0.5 m (end points at
+# x = 4.9, 4.83), while +-60 deg (x = 4.65) and wider are open by at least two grid cells.
+WALL_START, WALL_GOAL = np.array([4.4, 1.5]), np.array([6.0, 1.5])
+OPEN_CFG = GoalVectorConfig(
+    alpha_deg=30.0, open_rays=True, open_visits=10**6, stall_samples=20, uniform_fraction=0.0
+)
+
+
+def first_step_free(c: CollisionChecker, anchor, goal, k: int, alpha_deg: float, step: float):
+    th = math.atan2(goal[1] - anchor[1], goal[0] - anchor[0]) + math.radians(k * alpha_deg)
+    return c.segment_free(anchor, anchor + step * np.array([math.cos(th), math.sin(th)]))
+
+
+def test_open_rays_skip_rays_whose_first_step_is_blocked(doorway) -> None:
+    _, c = doorway
+    free = {k: first_step_free(c, WALL_START, WALL_GOAL, k, 30.0, 0.5) for k in range(-6, 7)}
+    assert not free[0] and not free[1] and not free[-1]  # the goal ray and +-1 are blocked
+    assert free[2] and free[-2]
+    smp = GoalVectorSampler(OPEN_CFG, checker=c, record=True)
+    smp.reset(WALL_START, WALL_GOAL, np.random.default_rng(3))
+    rays = []
+    for _ in range(400):
+        smp.sample(None)  # no tree: every sample is cast from the start and fails
+        rays.append(smp.log[-1][1])
+    assert all(free[k] for k in rays)
+    # the fan starts at the open ray nearest the goal direction (-2 is tested before +2) ...
+    assert set(rays[:20]) == {-2}
+    # ... and widens over the open rays only as the start's samples keep failing
+    assert {2, -3, 3} <= set(rays)
+    # samples reach at most ray_overshoot beyond each ray's free extent
+    smp2 = GoalVectorSampler(OPEN_CFG.replace(ray_overshoot=0.3), checker=c, record=True)
+    smp2.reset(WALL_START, WALL_GOAL, np.random.default_rng(4))
+    for _ in range(200):
+        smp2.sample(None)
+    pos, ext, _ = smp2._rays[0]
+    extent = {smp2._ks[p]: e for p, e in zip(pos, ext, strict=True)}
+    for _, k, t, _, _ in smp2.log:
+        assert t <= extent[k] + 0.3 + 1e-9
+    # without a checker (or with open_rays=False) the same sampler draws the blocked rays
+    blind = GoalVectorSampler(OPEN_CFG, record=True)
+    blind.reset(WALL_START, WALL_GOAL, np.random.default_rng(3))
+    for _ in range(400):
+        blind.sample(None)
+    assert {0, 1, -1} <= {r[1] for r in blind.log}
+
+
+def test_open_rays_from_a_growing_tree_and_planner(doorway) -> None:
+    m, c = doorway
+    start, goal = np.array([2.0, 1.5]), np.array([8.0, 1.5])  # goal behind the wall
+
+    def draw(seed: int) -> np.ndarray:
+        smp = GoalVectorSampler(OPEN_CFG.replace(open_visits=4), bounds=m.bounds, checker=c)
+        smp.reset(start, goal, np.random.default_rng(seed))
+        tree = Tree(start)
+        out = []
+        for i in range(600):
+            x = smp.sample(tree)
+            out.append(x)
+            if i % 3 == 0:
+                y = 0.5 * (x + tree.xy[i % tree.n])
+                if c.segment_free(tree.xy[i % tree.n], y):
+                    tree.add(y, i % tree.n, 0.1)
+        return np.array(out)
+
+    a, b, d = draw(5), draw(5), draw(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, d)
+    cfg = CFG.replace(stop_at_first_solution=True, max_iterations=4000)
+    gv = GoalVectorConfig(open_rays=True)
+    p = goal_vector_rrt_star(c, cfg, gv, bounds=m.bounds, rng=np.random.default_rng(0))
+    assert p.sampler.checker is c
+    path = p.plan(start, goal)
+    assert path is not None and c.path_free(path)
+    assert p.sampler.n_ray_tests > 0
+    q = goal_vector_rrt_star(c, cfg, gv, bounds=m.bounds, rng=np.random.default_rng(0))
+    np.testing.assert_array_equal(q.plan(start, goal), path)
+    np.testing.assert_array_equal(q.tree.xy[: q.tree.n], p.tree.xy[: p.tree.n])

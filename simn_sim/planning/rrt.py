@@ -328,8 +328,9 @@ def goal_vector_rrt_star(
     rng: np.random.Generator | None = None,
 ) -> RRTStar:
     """SIMN's planner: RRT* with goal-vector ray sampling (``bounds`` only feed the optional
-    uniform fraction; unknown space beyond the map is free)."""
-    return RRTStar(checker, GoalVectorSampler(gv_cfg, bounds), cfg, rng)
+    uniform fraction; unknown space beyond the map is free). The sampler sees the same
+    ``checker`` to cast its rays only where they are open (``GoalVectorConfig.open_rays``)."""
+    return RRTStar(checker, GoalVectorSampler(gv_cfg, bounds, checker=checker), cfg, rng)
 
 
 def uniform_rrt_star(

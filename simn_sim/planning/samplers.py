@@ -13,6 +13,8 @@ with ``dtheta ~ U(-angular_spread, angular_spread)``, ``t ~ U(0, t_max)``,
 goal ray most often). Optionally (``tree_anchor_fraction``) the rays are cast from a random tree
 node instead of the start. A fraction ``uniform_fraction`` of samples is drawn uniformly over a
 local window around start and goal, which keeps the planner probabilistically complete there.
+Optionally (``open_rays``, needs the planner's collision checker) each anchor's rays are tested
+against the map first and only the open ones are cast.
 
 All samplers draw in batches from an explicit ``np.random.Generator`` (one RNG call per batch).
 """
@@ -23,12 +25,15 @@ import bisect
 import dataclasses
 import heapq
 import math
-from typing import NamedTuple, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
 
 from simn_sim.config import Config, require
 from simn_sim.planning.tree import Tree
+
+if TYPE_CHECKING:
+    from simn_sim.planning.collision import CollisionChecker
 
 Bounds = tuple[float, float, float, float]
 """(xmin, ymin, xmax, ymax) in the planning frame, metres."""
@@ -77,6 +82,34 @@ class GoalVectorConfig(Config):
     """Best-first frontier: the frontier anchor is the tree node with the smallest
     ``distance to goal + visit_penalty * visits`` (metres per fruitless sample cast from it);
     0 = always the node nearest the goal."""
+    open_rays: bool = False
+    """With a collision checker (``GoalVectorSampler(..., checker=...)``): the fan cast from an
+    anchor is made of its *open* rays only, i.e. rays whose first ``open_step`` metres from the
+    anchor are free, taken in the order 0, -1, 1, -2, 2, ... (nearest the goal direction
+    first); the fan width (``2 level + 1`` rays, ``level`` from the adaptive fan) counts open
+    rays. If no ray of the anchor is open, all rays are used. False (or no checker): every ray
+    of the fan, blocked or not."""
+    open_tree_anchors: bool = False
+    """Test rays for being open also from random tree anchors (``tree_anchor_fraction``); False:
+    only from the frontier and the start, and rays from random tree nodes stay blind."""
+    open_visits: int = 4
+    """Rays are tested only while the anchor has fewer fruitless samples than this; after that
+    its fan is the blind one (``initial_rays + visits // stall_samples``), as without a checker
+    (a ray open at its nominal angle can still fail under the jitter, or when the sample is
+    extended from another node: without this, anchors in corners kept drawing on grazing open
+    rays)."""
+    open_step: float = 0.5
+    """Free length a ray needs from its anchor to be open (the planner's ``step_size``)."""
+    open_initial_rays: int = 0
+    """``initial_rays`` of the adaptive fan when rays are tested for being open: the fan of a
+    fresh anchor is its ``2 open_initial_rays + 1`` open rays nearest the goal direction (0:
+    the nearest open ray only; the map already says which rays are blocked)."""
+    ray_overshoot: float = math.inf
+    """With a checker and ``open_rays``: samples on a ray reach at most ``ray_overshoot``
+    metres beyond its first blocked point (the free extent of the ray, marched on the
+    checker's distance transform); ``inf`` (default) = the whole ray, as without a checker
+    (1-3 m gave more iterations and more misses on the simulator maps: the tree crowds the
+    walls)."""
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -130,6 +163,17 @@ class GoalVectorConfig(Config):
             n,
             "visit_penalty",
             ">= 0",
+        )
+        require(math.isfinite(self.open_step) and self.open_step > 0, n, "open_step", "> 0")
+        require(
+            0 <= self.open_initial_rays <= self.n_rays, n, "open_initial_rays", "in [0, n_rays]"
+        )
+        require(self.open_visits >= 0, n, "open_visits", ">= 0")
+        require(
+            not math.isnan(self.ray_overshoot) and self.ray_overshoot >= 0,
+            n,
+            "ray_overshoot",
+            ">= 0 (inf allowed)",
         )
 
     def ray_offsets(self) -> np.ndarray:
@@ -256,6 +300,17 @@ class GoalVectorSampler:
     frontier at the node nearest the goal; both anchor fractions 0 and ``adaptive_rays=False`` is
     the paper's sampler.
 
+    With a ``checker`` (and ``cfg.open_rays``) the sampler also looks at the map before casting:
+    for each anchor it tests its rays in the order 0, -1, 1, -2, 2, ... and keeps the open ones
+    (first ``cfg.open_step`` metres free), so the fan is the ``2 level + 1`` open rays nearest
+    the goal direction; and it marches each open ray on the checker's distance transform to its
+    first blocked point, drawing the distance along the ray only up to that point plus
+    ``cfg.ray_overshoot``. A ray's test is done once per anchor (the anchor and goal are fixed
+    during a plan), when the fan first needs it; random tree anchors stay blind unless
+    ``cfg.open_tree_anchors``, and an anchor with ``cfg.open_visits`` fruitless samples falls
+    back to the blind fan. Off by default: on the simulator maps it cuts iterations to the
+    first solution but not time (``docs/planning.md``).
+
     Failure is observed, not told: the planner passes its tree to :meth:`sample`, and a sample
     whose iteration added no node nearer the goal than its anchor (by ``progress_min``) counts
     as a visit of that anchor. Random numbers are drawn in batches from the generator given to
@@ -273,9 +328,11 @@ class GoalVectorSampler:
         cfg: GoalVectorConfig | None = None,
         bounds: Bounds | None = None,
         record: bool = False,
+        checker: CollisionChecker | None = None,
     ) -> None:
         self.cfg = cfg if cfg is not None else GoalVectorConfig()
         self.bounds = _check_bounds(bounds) if bounds is not None else None
+        self.checker = checker
         self.record = record
         self.log: list[tuple[np.ndarray, int, float, float, float]] = []
         self.start = np.zeros(2)
@@ -289,6 +346,10 @@ class GoalVectorSampler:
         # cumulative ray weights for each number of open ray pairs L (rays |k| <= L)
         self._cdf = [
             (np.cumsum(w[: 2 * L + 1]) / w[: 2 * L + 1].sum()).tolist() for L in range(len(ks))
+        ]
+        # the same weights by rank for a fan of m open rays (m = 1 .. len(ks))
+        self._cdf_open = [[1.0]] + [
+            (np.cumsum(w[:m]) / w[:m].sum()).tolist() for m in range(1, len(ks) + 1)
         ]
         self._batch_next = self.first_batch
         self._alpha = math.radians(self.cfg.alpha_deg)
@@ -310,6 +371,11 @@ class GoalVectorSampler:
         self._xy: list[list[float]] = []
         self._heap: list[tuple[float, int]] = []
         self._seen = 0
+        self._rays: dict[int, tuple[list[int], list[float], list[int]]] = {}
+        """Per anchor: (positions in ``ks`` of its open rays found so far, their free extents,
+        [next position to test])."""
+        self.n_ray_tests = 0
+        """Rays tested against the checker during this plan."""
 
     def reset(self, start: np.ndarray, goal: np.ndarray, rng: np.random.Generator) -> None:
         self._rng = rng
@@ -377,33 +443,104 @@ class GoalVectorSampler:
             return x
         u = self._anchor_u[k]
         a = 0
+        aware = self.checker is not None and cfg.open_rays
         if tree is not None and tree.n > 1:
             if u < cfg.frontier_anchor_fraction:
                 a = self.frontier
             elif u < cfg.frontier_anchor_fraction + cfg.tree_anchor_fraction:
                 a = int(self._node_u[k] * tree.n)
+                aware = aware and cfg.open_tree_anchors
+        aware = aware and self.visits[a] < cfg.open_visits
         self.anchor_index = a
         level = cfg.n_rays
         if cfg.adaptive_rays:
-            level = min(level, cfg.initial_rays + self.visits[a] // cfg.stall_samples)
+            init = cfg.open_initial_rays if aware else cfg.initial_rays
+            level = min(level, init + self.visits[a] // cfg.stall_samples)
         self.level = level
-        cdf = self._cdf[level]
-        ray = self._ks[min(bisect.bisect_left(cdf, self._ray_u[k]), len(cdf) - 1)]
         ax, ay = self._xy[a]
         dist = self.h[a]
         if dist > 1e-12:
             th = math.atan2(self._gy - ay, self._gx - ax)
         else:
             th = 0.0
+        t_max = max(cfg.min_range, cfg.range_scale * dist)
+        cdf = self._cdf[level]
+        m = min(bisect.bisect_left(cdf, self._ray_u[k]), len(cdf) - 1)
+        if aware:
+            # rank m among the open rays nearest the goal direction (tested only up to rank m)
+            pos, ext = self._open_fan(a, m + 1, ax, ay, th, t_max)
+            if len(pos) <= m and pos:  # fewer open rays than the fan: draw among those
+                cdf = self._cdf_open[len(pos)]
+                m = min(bisect.bisect_left(cdf, self._ray_u[k]), len(cdf) - 1)
+            if pos:
+                ray = self._ks[pos[m]]
+                t_max = min(t_max, ext[m] + cfg.ray_overshoot)
+            else:  # no open ray from this anchor: the whole fan, blocked or not
+                cdf = self._cdf[cfg.n_rays]
+                ray = self._ks[min(bisect.bisect_left(cdf, self._ray_u[k]), len(cdf) - 1)]
+        else:
+            ray = self._ks[m]
         jit = self._jit[k]
         th += ray * self._alpha + jit
-        t = self._f[k] * max(cfg.min_range, cfg.range_scale * dist)
+        t = self._f[k] * t_max
         lat = self._lat[k]
         c, s = math.cos(th), math.sin(th)
         x = np.array([ax + t * c - lat * s, ay + t * s + lat * c])
         if self.record:
             self.log.append((np.array([ax, ay]), ray, t, lat, jit))
         return x
+
+    def _open_fan(
+        self, a: int, m: int, ax: float, ay: float, th: float, t_max: float
+    ) -> tuple[list[int], list[float]]:
+        """The first ``m`` open rays of anchor ``a`` (positions in ``ks``, i.e. nearest the
+        goal direction first) and their free extents; fewer if the anchor has fewer."""
+        st = self._rays.get(a)
+        if st is None:
+            st = self._rays[a] = ([], [], [0])
+        pos, ext, nxt = st
+        ks = self._ks
+        cfg = self.cfg
+        reach = t_max if cfg.ray_overshoot < math.inf else cfg.open_step
+        while len(pos) < m and nxt[0] < len(ks):
+            p = nxt[0]
+            nxt[0] += 1
+            a_th = th + ks[p] * self._alpha
+            e = self._free_extent(ax, ay, math.cos(a_th), math.sin(a_th), reach)
+            self.n_ray_tests += 1
+            if e >= cfg.open_step:
+                pos.append(p)
+                ext.append(e)
+        return pos[:m], ext[:m]
+
+    def _free_extent(self, ax: float, ay: float, c: float, s: float, reach: float) -> float:
+        """Distance along the ray (ax, ay) + t (c, s) to its first blocked cell (``inf`` if
+        none up to ``reach``), marched on the checker's distance transform: from a point whose
+        cell is ``d`` from the nearest obstacle, no blocked cell is nearer than
+        ``d - inflation - 1.5 resolution`` (at least half a cell is stepped)."""
+        ch = self.checker
+        assert ch is not None
+        blocked = ch.blocked
+        nx, ny = blocked.shape
+        if nx == 0:
+            return math.inf
+        dist = ch.dist
+        r = ch.cfg.resolution
+        ox, oy = int(ch.cell_offset[0]), int(ch.cell_offset[1])
+        margin = ch.cfg.inflation + 1.5 * r
+        far = ch.cfg.max_clearance - margin
+        t = 0.0
+        while t <= reach:
+            i = math.floor((ax + t * c) / r) - ox
+            j = math.floor((ay + t * s) / r) - oy
+            if i < 0 or j < 0 or i >= nx or j >= ny:
+                d = far  # unknown space beyond the grid: free, >= max_clearance from obstacles
+            elif blocked[i, j]:
+                return t
+            else:
+                d = float(dist[i, j]) - margin
+            t += d if d > 0.5 * r else 0.5 * r
+        return math.inf
 
     def _add_node(self, i: int, xy: list[float]) -> float:
         h = math.hypot(xy[0] - self._gx, xy[1] - self._gy)
