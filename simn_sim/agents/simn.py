@@ -45,6 +45,7 @@ from simn_sim.planning import (
     uniform_rrt_star,
 )
 from simn_sim.planning.gridpath import grid_shortest_path
+from simn_sim.planning.smoothing import push_from_obstacles
 from simn_sim.semantics import FLOOR, OBSTACLE
 
 
@@ -78,6 +79,10 @@ class SimnAgentConfig(Config):
     switch_gain: float = (
         0.9  # a scheduled replan replaces the path only if shorter than this x remaining
     )
+    # a plan's vertices are pushed away from mapped obstacles up to this distance (m) where
+    # there is room (an elastic-band repair: shortcut paths hug the inflated obstacles, and the
+    # parts of chairs and boxes the camera has not seen yet lie just beyond them); 0: off
+    path_clearance: float = 0.5
     replan_every: int = 10  # control steps between scheduled replans
     # RRT* iterations per control step for scheduled replans (the robot keeps following its
     # path meanwhile); 0: the whole budget in one step. Event replans (blocked, stale, no
@@ -122,6 +127,7 @@ class SimnAgentConfig(Config):
         require(self.scan_rate > 0, n, "scan_rate", "must be > 0")
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         require(self.window > 0, n, "window", "must be > 0")
+        require(self.path_clearance >= 0, n, "path_clearance", "must be >= 0 (0: off)")
         require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
         require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
         require(self.carve_voxel > 0, n, "carve_voxel", "must be > 0")
@@ -428,6 +434,8 @@ class SimnAgent:
             if path is None:  # RRT* budget exhausted: complete grid search on the same checker
                 path = grid_shortest_path(self.checker, start, job["goal"], self.rng)
                 self.fallback_plans += int(path is not None)
+            if path is not None and self.cfg.path_clearance > 0:
+                path = push_from_obstacles(path, self.checker, self.cfg.path_clearance)
             if path is not None and start is not job["xy"]:
                 path = np.vstack([job["xy"], path])
             if path is not None and scheduled and not self.checker.path_free(path[1:]):

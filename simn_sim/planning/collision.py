@@ -292,6 +292,25 @@ class CollisionChecker:
         out[inside] = d
         return out
 
+    def nearest_obstacle(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) x-y -> (N, 2) centre of the nearest obstacle cell (the distance transform's
+        feature), NaN where there is none within the grid (unknown space)."""
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        out = np.full((len(q), 2), np.nan)
+        if self.occupied.size == 0 or len(q) == 0:
+            return out
+        r = self.cfg.resolution
+        ij = np.floor(q / r - self.cell_offset).astype(np.int64)
+        nx, ny = self.shape
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        k = np.flatnonzero(inside)
+        ni = self.nearest[0, ij[k, 0], ij[k, 1]]
+        nj = self.nearest[1, ij[k, 0], ij[k, 1]]
+        has = ni >= 0
+        cen = (np.stack([ni, nj], axis=1) + 0.5 + self.cell_offset) * r
+        out[k[has]] = cen[has]
+        return out
+
     def _cells(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, 2) finite x-y -> cell indices clipped to the grid (border cells are free)."""
         nx, ny = self.shape

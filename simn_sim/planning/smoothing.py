@@ -1,4 +1,5 @@
-"""Path post-processing with the collision checker: shortcutting (planning frame x-y)."""
+"""Path post-processing with the collision checker (planning frame x-y): shortcutting, and
+pushing a path away from obstacles where there is room (:func:`push_from_obstacles`)."""
 
 from __future__ import annotations
 
@@ -78,4 +79,73 @@ def shortcut_path(
     if iterations > 0:
         p = random_shortcut(p, checker, rng, iterations)
         p = greedy_shortcut(p, checker)
+    return p
+
+
+def densify(path: np.ndarray, spacing: float) -> np.ndarray:
+    """The polyline with extra vertices so that no segment is longer than ``spacing``."""
+    p = np.asarray(path, dtype=np.float64).reshape(-1, 2)
+    out = [p[0]]
+    for a, b in zip(p[:-1], p[1:], strict=True):
+        n = max(1, int(np.ceil(np.hypot(*(b - a)) / spacing)))
+        t = np.arange(1, n + 1)[:, None] / n
+        out.extend(a + t * (b - a))
+    return np.asarray(out)
+
+
+def push_from_obstacles(
+    path: np.ndarray,
+    checker: CollisionChecker,
+    target_clearance: float,
+    spacing: float = 0.1,
+    step: float = 0.03,
+    iterations: int = 15,
+) -> np.ndarray:
+    """Move the path's interior vertices away from the nearest obstacle until their clearance
+    reaches ``target_clearance`` (m, distance to the nearest obstacle cell) or they stop being
+    able to move (an elastic-band-style repair of shortcut paths, which hug the inflated
+    obstacles at their corners). The path is densified to ``spacing`` first; endpoints stay.
+    Each iteration moves a vertex by at most ``step`` along the direction from its nearest
+    obstacle; a move is kept only where the two segments at the vertex stay free, so the result
+    is free wherever the input was. A narrow passage keeps the path at its centre line (the
+    push from both sides balances), so nothing becomes impassable."""
+    p = densify(path, spacing)
+    if len(p) < 3 or target_clearance <= 0:
+        return p
+    for _ in range(iterations):
+        q = p[1:-1]
+        c = checker.clearance(q)
+        need = c < target_clearance
+        if not need.any():
+            break
+        o = checker.nearest_obstacle(q)
+        d = q - o
+        n = np.hypot(d[:, 0], d[:, 1])
+        ok = need & np.isfinite(n) & (n > 1e-9)
+        if not ok.any():
+            break
+        move = np.zeros_like(q)
+        amount = np.minimum(step, target_clearance - c)
+        move[ok] = d[ok] / n[ok, None] * amount[ok, None]
+        cand = p.copy()
+        cand[1:-1] = q + move
+        # keep a vertex's move only if both of its segments stay free
+        seg_free = checker.segments_free(cand[:-1], cand[1:])
+        keep = seg_free[:-1] & seg_free[1:] & checker.is_free(cand[1:-1])
+        if not keep.any():
+            break
+        trial = p.copy()
+        trial[1:-1][keep] = cand[1:-1][keep]
+        # a kept vertex next to a reverted one can still leave a blocked segment: revert those
+        bad = ~checker.segments_free(trial[:-1], trial[1:])
+        while bad.any():
+            idx = np.unique(np.concatenate([np.flatnonzero(bad), np.flatnonzero(bad) + 1]))
+            idx = idx[(idx > 0) & (idx < len(p) - 1)]
+            if len(idx) == 0:
+                break
+            trial[idx] = p[idx]
+            bad = ~checker.segments_free(trial[:-1], trial[1:])
+        if bad.any():
+            break
+        p = trial
     return p

@@ -97,7 +97,7 @@ class SlamConfig(Config):
     depth_sigma_per_m2: float = 0.0
     # innovation gate: a fused correction beyond this Mahalanobis distance under the motion
     # prior's covariance is rejected (the prediction is kept); 0 disables
-    gate_sigmas: float = 6.0
+    gate_sigmas: float = 12.0
     max_correction_m: float = 0.3  # a registration moving the prior further is rejected
     max_correction_deg: float = 20.0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
@@ -106,6 +106,9 @@ class SlamConfig(Config):
     odom_sigma_trans: float = 0.005  # m
     odom_sigma_trans_per_m: float = 0.02
     revisits: bool = True
+    # 0: all revisit candidates are checked when a frame opens (a 100-600 ms step on 2 CPU
+    # cores); k > 0: k candidates per following frame (bounded work per control step)
+    revisit_checks_per_frame: int = 0
     # obstacle / floor point stores (per local frame, anchor coordinates)
     obstacle_voxel: float = 0.05
     floor_voxel: float = 0.10
@@ -176,6 +179,7 @@ class SlamConfig(Config):
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
         require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")
         require(self.depth_sigma_per_m2 >= 0, n, "depth_sigma_per_m2", "must be >= 0")
+        require(self.revisit_checks_per_frame >= 0, n, "revisit_checks_per_frame", "must be >= 0")
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
@@ -207,6 +211,7 @@ class SlamConfig(Config):
         d.update(
             max_track_points=2500,
             map_kind="points",
+            revisit_checks_per_frame=1,
             open_train_iters=60,
             train_iters=15,
             train_every=5,

@@ -52,7 +52,7 @@ from simn_sim.tracking.localframes import FrameTrigger, LocalFrame, unpack_featu
 from simn_sim.tracking.pointsdf import PointCloudSDF
 from simn_sim.tracking.posegraph import covariance_from_sigmas
 from simn_sim.tracking.registration import register
-from simn_sim.tracking.topomap import TopoMap, close_loop
+from simn_sim.tracking.topomap import TopoMap, close_loop, describe
 
 
 @dataclasses.dataclass
@@ -266,6 +266,8 @@ class SimnSlam:
         self._floor_cache: tuple[tuple, np.ndarray] | None = None
         self.last: SlamFrame | None = None
         self.loop_log: list[dict[str, Any]] = []
+        # deferred revisit checks (revisit_checks_per_frame > 0): (frame, points, candidates)
+        self._pending_revisit: tuple[int, np.ndarray, list[int]] | None = None
 
     # ------------------------------------------------------------------ perception
     def _perceive(self, rgb: np.ndarray | None, depth: np.ndarray) -> dict[str, np.ndarray]:
@@ -517,11 +519,28 @@ class SimnSlam:
             self._hist = [(tt, inv_T(self.topo.anchor(fid)) @ self.topo.anchor(old) @ T)
                           for tt, T in self._hist]  # fmt: skip
             T_anchor_cam = np.eye(4)
+            self._pending_revisit = None
             if self.cfg.revisits and len(track_pts) >= 100:
-                revisit_fid = self._revisit(fid, track_pts, T_world_cam)
-                if revisit_fid is not None:
-                    revisit = True
-                    T_world_cam = self.topo.anchor(fid) @ T_anchor_cam
+                if self.cfg.revisit_checks_per_frame > 0:
+                    cands = self._revisit_candidates(fid, track_pts, T_world_cam)
+                    if cands:
+                        self._pending_revisit = (fid, track_pts, cands)
+                else:
+                    revisit_fid = self._revisit(fid, track_pts, T_world_cam)
+                    if revisit_fid is not None:
+                        revisit = True
+                        T_world_cam = self.topo.anchor(fid) @ T_anchor_cam
+        elif not first and self._pending_revisit is not None:
+            # deferred: the opening observation of the current frame against the next
+            # candidates (its camera pose then was the frame's anchor)
+            pfid, ppts, queue = self._pending_revisit
+            k = self.cfg.revisit_checks_per_frame
+            self._pending_revisit = (pfid, ppts, queue[k:]) if len(queue) > k else None
+            revisit_fid = self._revisit(pfid, ppts, self.topo.anchor(pfid), queue[:k])
+            if revisit_fid is not None:
+                revisit = True
+                self._pending_revisit = None
+                T_world_cam = self.topo.anchor(self.current_frame_id) @ T_anchor_cam
         fid = self.current_frame_id
         st = self._states[fid]
 
@@ -669,8 +688,25 @@ class SimnSlam:
             raise ValueError(f"frame {fid} has no map to register against")
         return self._register_c2f(pts, sdf, T_init, self.cfg.registration)
 
-    def _revisit(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
+    def _revisit_candidates(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> list[int]:
+        """Earlier frames to check for a revisit, most similar first (as in ``close_loop``)."""
         if len(self._states) <= self.cfg.loop.exclude_recent + 1:
+            return []
+        c = self.cfg.loop
+        desc = describe(
+            transform_points(T_world_cam, pts.astype(np.float64)), None, self.topo.desc_cfg
+        )
+        found = self.topo.candidates(desc, c.exclude_recent, c.top, c.min_similarity, exclude=[fid])
+        return [int(f) for f, _ in found]
+
+    def _revisit(
+        self,
+        fid: int,
+        pts: np.ndarray,
+        T_world_cam: np.ndarray,
+        candidate_ids: list[int] | None = None,
+    ) -> int | None:
+        if candidate_ids is None and len(self._states) <= self.cfg.loop.exclude_recent + 1:
             return None
         try:
             # candidates() skips the most recent frames; untrained maps have no descriptor
@@ -681,7 +717,7 @@ class SimnSlam:
                 T_world_cam,
                 self._loop_register,
                 self.cfg.loop,
-                candidate_ids=None,
+                candidate_ids=candidate_ids,
                 pose_graph_cfg=self.cfg.pose_graph,
             )
         except Exception as e:  # noqa: BLE001 - a failed revisit check must not stop tracking
