@@ -207,6 +207,9 @@ class SlamConfig(Config):
         registration points and shorter training bursts."""
         base = cls()
         tr = dataclasses.replace(base.mapper.training, batch_size=2048)
+        # stereo depth noise grows with range^2: the floor band widens with range and far
+        # points are not obstacles (the values the agent's odometry ablation uses)
+        cl = dataclasses.replace(base.classifier, floor_tol_per_m2=0.01, max_obstacle_range=3.5)
         d = base.to_dict()
         d.update(
             max_track_points=2500,
@@ -216,8 +219,10 @@ class SlamConfig(Config):
             train_iters=15,
             train_every=5,
             mapper={**d["mapper"], "training": tr.to_dict()},
+            classifier=cl.to_dict(),
         )
-        d.update(changes)
+        for k, v in changes.items():  # a nested mapping changes only the keys it names
+            d[k] = {**d[k], **v} if isinstance(v, dict) and isinstance(d.get(k), dict) else v
         return cls.from_dict(d)
 
 

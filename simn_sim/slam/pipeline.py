@@ -753,7 +753,9 @@ class SimnSlam:
         Pw = transform_points(T_world_cam, obs["points"].astype(np.float64))
         Nw = obs["normals"].astype(np.float64) @ R.T
         try:
-            res = classify_points(Pw, Nw, self.cfg.classifier, plane=(n, d))
+            res = classify_points(
+                Pw, Nw, self.cfg.classifier, plane=(n, d), ranges=obs["points"][:, 2]
+            )
         except Exception:  # noqa: BLE001
             return np.zeros(len(Pw), np.int8)
         return res.labels.astype(np.int8)
