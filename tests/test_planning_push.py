@@ -54,3 +54,17 @@ def test_push_without_obstacles_or_target_changes_nothing_but_density():
     out = push_from_obstacles(path, c, target_clearance=0.5)
     np.testing.assert_allclose(out[:, 1], 0.0)
     np.testing.assert_allclose(out[[0, -1]], path)
+
+
+def test_push_terminates_on_a_path_that_is_not_free():
+    """A path through a wall (the map grew across it): the push ends, moves no vertex into a
+    new blocked segment, and leaves the blocked part to the caller."""
+    m = doorway_map(door_width=1.0)
+    c = _checker(m)
+    path = np.array([[2.0, 1.5], [8.0, 1.5]])  # straight through the wall at x = 5
+    out = push_from_obstacles(path, c, target_clearance=0.5)
+    before = densify(path, 0.1)
+    assert len(out) == len(before)
+    free_before = c.segments_free(before[:-1], before[1:])
+    assert not free_before.all()
+    assert np.all(c.segments_free(out[:-1], out[1:])[free_before])

@@ -107,11 +107,12 @@ def push_from_obstacles(
     obstacles at their corners). The path is densified to ``spacing`` first; endpoints stay.
     Each iteration moves a vertex by at most ``step`` along the direction from its nearest
     obstacle; a move is kept only where the two segments at the vertex stay free, so the result
-    is free wherever the input was. A narrow passage keeps the path at its centre line (the
+    is free wherever the input was (segments that were not free are left to the caller). A narrow passage keeps the path at its centre line (the
     push from both sides balances), so nothing becomes impassable."""
     p = densify(path, spacing)
     if len(p) < 3 or target_clearance <= 0:
         return p
+    was_free = checker.segments_free(p[:-1], p[1:])  # a move may not block a free segment
     for _ in range(iterations):
         q = p[1:-1]
         c = checker.clearance(q)
@@ -136,16 +137,19 @@ def push_from_obstacles(
             break
         trial = p.copy()
         trial[1:-1][keep] = cand[1:-1][keep]
-        # a kept vertex next to a reverted one can still leave a blocked segment: revert those
-        bad = ~checker.segments_free(trial[:-1], trial[1:])
+        # a kept vertex next to a reverted one can still block a segment that was free:
+        # revert the vertices of such segments until none is left (each round reverts at
+        # least one moved vertex, so this ends)
+        bad = was_free & ~checker.segments_free(trial[:-1], trial[1:])
         while bad.any():
             idx = np.unique(np.concatenate([np.flatnonzero(bad), np.flatnonzero(bad) + 1]))
             idx = idx[(idx > 0) & (idx < len(p) - 1)]
+            idx = idx[np.any(trial[idx] != p[idx], axis=1)]
             if len(idx) == 0:
                 break
             trial[idx] = p[idx]
-            bad = ~checker.segments_free(trial[:-1], trial[1:])
-        if bad.any():
+            bad = was_free & ~checker.segments_free(trial[:-1], trial[1:])
+        if bad.any() or np.array_equal(trial, p):
             break
         p = trial
     return p
