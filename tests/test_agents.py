@@ -90,18 +90,9 @@ def _room_with_box_behind_start():
 
 @pytest.mark.parametrize("scan", [0.0, 360.0])
 def test_initial_scan_maps_what_stands_behind_the_start(scan):
-    import simn_sim.env.office as office
-    from simn_sim.env.office import SimnOfficeEnv
+    from test_env import _env_with_layout  # the env on a hand-made layout
 
-    layout = _room_with_box_behind_start()
-    e = SimnOfficeEnv(config={"width": 160, "height": 120})
-    orig = office.load_layout
-    office.load_layout = lambda seed: layout
-    try:
-        e._layout_key = object()
-        e._load_layout(None)
-    finally:
-        office.load_layout = orig
+    e = _env_with_layout(_room_with_box_behind_start())
     ep = {"episode_id": "scan", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [10.0, 4.0]}
     obs, info = e.reset(options={"episode": ep})
     agent = make_agent("simn", e, {"initial_scan_deg": scan})

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.geometry.se3 import inv_T, pose_error, se3_exp, transform_points
+from simn_sim.geometry.se3 import inv_T, orthonormalize, pose_error, se3_exp, transform_points
 from simn_sim.mapping.mapper import ImplicitMap
 from simn_sim.mapping.perception import voxel_downsample
 from simn_sim.semantics import FLOOR, OBSTACLE, classify_points, normals_from_organized
@@ -495,7 +495,7 @@ class SimnSlam:
             T_pred_world = T_world_cam.copy()
         else:
             A = self.topo.anchor(self.current_frame_id)
-            T_pred = _rigid(self._predict(t, prior))
+            T_pred = orthonormalize(self._predict(t, prior))
             T_pred_world = A @ T_pred
             use_odom = prior is not None and self._last_prior is not None
             T_anchor_cam, success, reason, iters, against, rms = self._register(
@@ -503,8 +503,8 @@ class SimnSlam:
             )
             if success:
                 self._update_rms(rms)
-            T_anchor_cam = _rigid(T_anchor_cam)
-            T_world_cam = _rigid(A @ T_anchor_cam)
+            T_anchor_cam = orthonormalize(T_anchor_cam)
+            T_world_cam = orthonormalize(A @ T_anchor_cam)
         if not success:
             self.n_track_failures += 1
         track_ms = (time.perf_counter() - t0) * 1e3
@@ -604,7 +604,7 @@ class SimnSlam:
             return T_pred, False, f"registration error: {type(e).__name__}: {e}", 0, fid, np.nan
         if not res.success:
             return T_pred, False, res.reason, res.iterations, fid, res.final_rms
-        T_est = _rigid(T_cur_f @ res.pose)
+        T_est = orthonormalize(T_cur_f @ res.pose)
         reason = "ok"
         if self.cfg.fuse_prior:
             # Bayesian fusion in the camera-frame tangent at the prediction: the registration
@@ -624,7 +624,7 @@ class SimnSlam:
                     ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
                     info = D @ ((V * ev) @ V.T) @ D
                 fused = np.linalg.solve(info + prior_info, info @ delta)
-                T_est = _rigid(T_pred @ se3_exp(fused))
+                T_est = orthonormalize(T_pred @ se3_exp(fused))
                 # innovation gate: a correction many prior sigmas away is a registration that
                 # slid (an edge of the model, a weakly constrained view), not the motion the
                 # prediction missed; keep the prediction
@@ -915,18 +915,6 @@ class SimnSlam:
             if self.T_base_cam is not None:
                 out["T_world_base_est"] = last.T_world_cam @ inv_T(self.T_base_cam)
         return out
-
-
-def _rigid(T: np.ndarray) -> np.ndarray:
-    """Project a nearly rigid 4x4 transform onto SE(3) (products of many poses drift)."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, T[:3, 3]
-    return out
 
 
 def _voxel_pick(
