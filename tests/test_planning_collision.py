@@ -138,6 +138,29 @@ def test_segments_free_matches_dense_point_checks() -> None:
     assert not c.is_free(np.array([[np.nan, 1.0]]))[0]
 
 
+@pytest.mark.parametrize("margin", [0.0, 0.1])
+def test_scalar_walk_with_distance_shortcuts_equals_vectorised(margin: float) -> None:
+    """segment_free accepts a segment from the distance transform at its midpoint and jumps
+    through open space during the walk; both shortcuts must keep the exact cell walk's answer
+    (box field: open space, narrow gaps and segments ending outside the grid)."""
+    m = box_field_map(np.random.default_rng(4))
+    c = CollisionChecker(CollisionConfig(margin=margin))
+    c.update(m.points, m.labels)
+    rng = np.random.default_rng(5)
+    lo, hi = np.array(m.bounds[:2]) - 3.0, np.array(m.bounds[2:]) + 3.0
+    n_free = 0
+    for scale in (0.3, 1.0, 4.0, 15.0):
+        A = rng.uniform(lo, hi, size=(400, 2))
+        ang = rng.uniform(0, 2 * np.pi, 400)
+        B = A + scale * rng.uniform(0, 1, (400, 1)) * np.column_stack([np.cos(ang), np.sin(ang)])
+        want = c.segments_free(A, B)
+        assert [c.segment_free(a, b) for a, b in zip(A, B, strict=True)] == want.tolist()
+        assert [c.segment_free(b, a) for a, b in zip(A, B, strict=True)] == want.tolist()
+        n_free += int(want.sum())
+        assert not want.all()
+    assert n_free > 400
+
+
 def test_obstacle_polygons_cover_occupied_cells() -> None:
     c = CollisionChecker()
     c.update(wall_points(2.0, 0.0, 1.0))

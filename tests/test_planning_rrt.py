@@ -275,6 +275,42 @@ def test_node_index_matches_brute_force() -> None:
     assert 3 < idx.rebuilds < 40  # log-structured: geometric rebuilds
 
 
+def test_tree_near_dist_and_mirrors_match_brute_force() -> None:
+    """Tree.near_dist (3 x 3 cells; arrays in dense parts; the spatial index for radii beyond
+    the cell) equals brute force, and the Python mirrors of positions and costs equal the
+    arrays after rewires."""
+    rng = np.random.default_rng(3)
+    tree = Tree(np.zeros(2), capacity=8, cell_size=1.0)
+    for n in range(1, 1500):
+        # a dense cluster near the origin, sparse elsewhere
+        p = rng.normal(scale=0.4, size=2) if n % 3 else rng.uniform(-8, 8, size=2)
+        j = int(rng.integers(n))
+        tree.add(p, j, float(np.hypot(*(p - tree.xy[j]))))
+        if n in (1, 5, 60, 400, 1499):
+            for q in np.vstack([rng.uniform(-8, 8, size=(15, 2)), rng.normal(0, 0.3, (5, 2))]):
+                d = np.hypot(*(tree.xy - q).T)
+                for radius in (0.7, 1.0, 2.5):
+                    idx, dist = tree.near_dist(float(q[0]), float(q[1]), radius)
+                    np.testing.assert_array_equal(np.asarray(idx), np.nonzero(d <= radius)[0])
+                    np.testing.assert_allclose(np.asarray(dist), d[d <= radius], atol=1e-12)
+    assert isinstance(tree.near_dist(0.0, 0.0, 1.0)[0], np.ndarray)  # the dense cluster
+    assert isinstance(tree.near_dist(7.9, -7.9, 1.0)[0], list)  # sparse
+    for _ in range(200):  # rewire to a cheaper parent (no cycles: a lower index)
+        child = int(rng.integers(2, len(tree)))
+        new_parent = int(rng.integers(child))
+        sub, k = {child}, [child]
+        while k:
+            k = [c for i in k for c in tree.children[i]]
+            sub.update(k)
+        e = float(np.hypot(*(tree.xy[child] - tree.xy[new_parent])))
+        if new_parent not in sub and tree.cost[new_parent] + e < tree.cost[child]:
+            tree.rewire(child, new_parent, e)
+    assert tree.n_rewires > 10
+    np.testing.assert_array_equal(np.array(tree.costs), tree.cost)
+    np.testing.assert_array_equal(np.column_stack([tree.xs, tree.ys]), tree.xy)
+    np.testing.assert_allclose(tree.cost, tree.recomputed_costs(), atol=1e-9)
+
+
 def test_adaptive_rays_widen_per_anchor_on_stall_and_reset_on_progress() -> None:
     cfg = GoalVectorConfig(
         n_rays=4,

@@ -145,42 +145,90 @@ class RRTStar:
         self._busy_s = 0.0
 
     # ------------------------------------------------------------------ core steps
-    def _insert(self, x_new: np.ndarray, extra: int = -1) -> int:
-        """Choose-parent + add + rewire for a collision-free point; returns index or -1."""
+    def _insert(self, x_new: np.ndarray, extra: int = -1, d_extra: float = math.inf) -> int:
+        """Choose-parent + add + rewire for a collision-free point; returns index or -1.
+
+        ``extra`` (at distance ``d_extra`` from ``x_new``, if known) is always a candidate
+        parent, even if it is not within the rewiring radius. Plain Python on the tree's
+        lists: a neighbourhood holds a few dozen nodes at most, where NumPy's per-call cost
+        dominates."""
         tree = self.tree
         assert tree is not None
         cfg = self.cfg
-        near = tree.near(x_new, cfg.rewire_radius)
-        if extra >= 0 and not np.any(near == extra):
-            near = np.append(near, extra)
-        if len(near) == 0:
+        radius = cfg.rewire_radius
+        xn, yn = float(x_new[0]), float(x_new[1])
+        xs, ys, costs = tree.xs, tree.ys, tree.costs
+        near, d = tree.near_dist(xn, yn, radius)
+        if isinstance(near, np.ndarray):  # dense part of the tree
+            return self._insert_dense(x_new, near, d, extra, d_extra)
+        if extra >= 0 and not d_extra < radius * (1.0 - 1e-9) and extra not in near:
+            near.append(extra)
+            d.append(math.hypot(xs[extra] - xn, ys[extra] - yn))
+        if not near:
             return -1
-        d = np.hypot(*(tree.xy[near] - x_new).T)
         if len(near) > cfg.max_neighbours:
-            sel = np.argpartition(d, cfg.max_neighbours - 1)[: cfg.max_neighbours]
-            near, d = near[sel], d[sel]
-        c = tree.cost[near] + d
+            sel = sorted(range(len(near)), key=d.__getitem__)[: cfg.max_neighbours]
+            sel.sort()
+            near = [near[m] for m in sel]
+            d = [d[m] for m in sel]
+        c = [costs[j] + dj for j, dj in zip(near, d, strict=True)]
         # choose-parent, lazily: check edges cheapest first and stop at the first free one
-        seg_free = self.checker.segment_free
-        xy = tree.xy
+        seg_free = self.checker.segment_free_xy
         k = -1
-        for m in np.argsort(c, kind="stable"):
-            if seg_free(xy[near[m]], x_new):
-                k = int(m)
+        for m in sorted(range(len(c)), key=c.__getitem__):
+            j = near[m]
+            if seg_free(xs[j], ys[j], xn, yn):
+                k = m
                 break
         if k < 0:
             return -1
-        i_new = tree.add(x_new, int(near[k]), float(d[k]))
-        c_new = tree.cost[i_new]
-        # rewire: neighbours that become cheaper through the new node (edge checked only then)
-        cand = np.nonzero(c_new + d < tree.cost[near] - 1e-12)[0]
-        for m in cand:
-            if m == k:
-                continue
-            j, dj = int(near[m]), float(d[m])
-            # cost of j may have dropped through an earlier rewire in this loop; re-check
-            if c_new + dj < tree.cost[j] - 1e-12 and seg_free(tree.xy[i_new], tree.xy[j]):
-                tree.rewire(j, i_new, dj)
+        i_new = tree.add(x_new, near[k], d[k])
+        c_new = costs[i_new]
+        # rewire: neighbours that become cheaper through the new node (edge checked only then;
+        # costs are read as they are now: an earlier rewire in this loop may have lowered them)
+        for m, j in enumerate(near):
+            if m != k and c_new + d[m] < costs[j] - 1e-12 and seg_free(xn, yn, xs[j], ys[j]):
+                tree.rewire(j, i_new, d[m])
+        return i_new
+
+    def _insert_dense(
+        self, x_new: np.ndarray, near: np.ndarray, d: np.ndarray, extra: int, d_extra: float
+    ) -> int:
+        """:meth:`_insert` with the neighbourhood in arrays (many nodes nearby)."""
+        tree = self.tree
+        assert tree is not None
+        cfg = self.cfg
+        xn, yn = float(x_new[0]), float(x_new[1])
+        xs, ys, costs = tree.xs, tree.ys, tree.costs
+        if (
+            extra >= 0
+            and not d_extra < cfg.rewire_radius * (1.0 - 1e-9)
+            and not np.any(near == extra)
+        ):
+            near = np.append(near, extra)
+            d = np.append(d, math.hypot(xs[extra] - xn, ys[extra] - yn))
+        if len(near) == 0:
+            return -1
+        if len(near) > cfg.max_neighbours:
+            sel = np.sort(np.argpartition(d, cfg.max_neighbours - 1)[: cfg.max_neighbours])
+            near, d = near[sel], d[sel]
+        c = tree.cost[near] + d
+        seg_free = self.checker.segment_free_xy
+        near_l, d_l = near.tolist(), d.tolist()
+        k = -1
+        for m in np.argsort(c, kind="stable").tolist():
+            j = near_l[m]
+            if seg_free(xs[j], ys[j], xn, yn):
+                k = m
+                break
+        if k < 0:
+            return -1
+        i_new = tree.add(x_new, near_l[k], d_l[k])
+        c_new = costs[i_new]
+        for m in np.nonzero(c_new + d < tree.cost[near] - 1e-12)[0].tolist():
+            j = near_l[m]
+            if m != k and c_new + d_l[m] < costs[j] - 1e-12 and seg_free(xn, yn, xs[j], ys[j]):
+                tree.rewire(j, i_new, d_l[m])
         return i_new
 
     def plan(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
@@ -207,13 +255,12 @@ class RRTStar:
         self._it = 0
         self._coin = np.zeros(0)  # goal-bias coins, drawn in batches as iterations go
         self.sampler.reset(start, goal, self.rng)
-        self.tree = tree = Tree(start)
+        self.tree = tree = Tree(start, cell_size=self.cfg.rewire_radius)
         self.goal_index = None
         self.raw_path = self.path = None
         st = self.stats = PlanStats()
-        if (
-            self.checker.segment_free(start, goal)
-            and np.hypot(*(goal - start)) <= self.cfg.step_size
+        if np.hypot(*(goal - start)) <= self.cfg.step_size and self.checker.segment_free(
+            start, goal
         ):
             self.goal_index = tree.add(goal, 0, float(np.hypot(*(goal - start))))
             st.first_solution_iteration = 0
@@ -243,6 +290,8 @@ class RRTStar:
         goal = self._goal
         st = self.stats
         step = cfg.step_size
+        gx, gy = goal.tolist()
+        is_free = self.checker.is_free_point
         t_in = time.perf_counter()
         deadline = (
             t_in + (cfg.time_budget_ms * 1e-3 - self._busy_s)
@@ -267,22 +316,26 @@ class RRTStar:
             if d_near < 1e-9:
                 continue
             if d_near > step:
-                x_new = tree.xy[i_near] + (x_rand - tree.xy[i_near]) * (step / d_near)
+                x_near = tree.xy[i_near]
+                x_new = x_near + (x_rand - x_near) * (step / d_near)
+                d_new = step
             else:
                 x_new = np.array(x_rand, dtype=np.float64)
-            if not self.checker.is_free_point(x_new[0], x_new[1]):
+                d_new = d_near
+            xn, yn = x_new.tolist()
+            if not is_free(xn, yn):
                 st.n_collision_rejects += 1
                 continue
-            i_new = self._insert(x_new, extra=i_near)
+            i_new = self._insert(x_new, i_near, d_new)
             if i_new < 0:
                 st.n_collision_rejects += 1
                 continue
             if self.goal_index is None:
-                dg = float(np.hypot(*(goal - x_new)))
+                dg = math.hypot(gx - xn, gy - yn)
                 if dg <= cfg.goal_tolerance:
                     self.goal_index = i_new
                 elif dg <= step:
-                    g = self._insert(goal.copy(), extra=i_new)
+                    g = self._insert(goal.copy(), i_new, dg)
                     if g >= 0:
                         self.goal_index = g
                 if self.goal_index is not None:

@@ -8,6 +8,8 @@ spaced sizes (amortised O(log n) per insert) and no query scans the whole tree.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -77,9 +79,16 @@ class Tree:
         parent: (n,) int64, -1 for the root.
         cost: (n,) float64 cost-to-come (path length from the root).
     ``children[i]`` lists node i's children. Node 0 is the root.
+
+    Besides the arrays, positions and costs are mirrored in Python lists and the nodes are
+    hashed into square cells of ``cell_size`` (the planner's rewiring radius), so that the
+    per-insertion work of RRT* (:meth:`near_dist`, costs of a few neighbours) runs without
+    NumPy calls in small neighbourhoods.
     """
 
-    def __init__(self, root: np.ndarray, capacity: int = 1024) -> None:
+    def __init__(self, root: np.ndarray, capacity: int = 1024, cell_size: float = 1.0) -> None:
+        if not (math.isfinite(cell_size) and cell_size > 0):
+            raise ValueError(f"cell_size must be finite and > 0: {cell_size}")
         self._xy = np.zeros((capacity, 2))
         self._parent = np.full(capacity, -1, dtype=np.int64)
         self._cost = np.zeros(capacity)
@@ -88,6 +97,14 @@ class Tree:
         self.index = NodeIndex()
         self.index.reset(self._xy)
         self.n_rewires = 0
+        self.cell_size = float(cell_size)
+        self._inv_cell = 1.0 / self.cell_size
+        self._cells: dict[tuple[int, int], list[int]] = {}
+        self.xs: list[float] = []
+        """Node x coordinates (Python floats; same values as ``xy[:, 0]``)."""
+        self.ys: list[float] = []
+        self.costs: list[float] = []
+        """Cost-to-come per node (Python floats; same values as ``cost``)."""
         self.add(np.asarray(root, dtype=np.float64), -1, 0.0)
 
     @property
@@ -113,9 +130,20 @@ class Tree:
             self._parent = np.concatenate([self._parent, np.full(cap - self.n, -1, np.int64)])
             self._cost = np.concatenate([self._cost, np.zeros(cap - self.n)])
         i = self.n
-        self._xy[i] = xy
+        x, y = float(xy[0]), float(xy[1])
+        c = 0.0 if parent < 0 else self.costs[parent] + edge_cost
+        self._xy[i] = x, y
         self._parent[i] = parent
-        self._cost[i] = 0.0 if parent < 0 else self._cost[parent] + edge_cost
+        self._cost[i] = c
+        self.xs.append(x)
+        self.ys.append(y)
+        self.costs.append(c)
+        key = (math.floor(x * self._inv_cell), math.floor(y * self._inv_cell))
+        cell = self._cells.get(key)
+        if cell is None:
+            self._cells[key] = [i]
+        else:
+            cell.append(i)
         self.children.append([])
         if parent >= 0:
             self.children[parent].append(i)
@@ -128,17 +156,18 @@ class Tree:
 
         Callers only rewire when the new cost is lower, so no node's cost increases."""
         old = int(self._parent[child])
-        new_cost = self._cost[new_parent] + edge_cost
-        delta = new_cost - self._cost[child]
+        costs = self.costs
+        delta = (costs[new_parent] + edge_cost) - costs[child]
         if old >= 0:
             self.children[old].remove(child)
         self.children[new_parent].append(child)
         self._parent[child] = new_parent
-        stack = [child]
-        while stack:
-            k = stack.pop()
-            self._cost[k] += delta
-            stack.extend(self.children[k])
+        sub = [child]
+        children = self.children
+        for k in sub:  # grows while iterating: the whole subtree
+            costs[k] += delta
+            sub.extend(children[k])
+        self._cost[sub] = [costs[k] for k in sub]
         self.n_rewires += 1
 
     def nearest(self, q: np.ndarray) -> int:
@@ -146,6 +175,47 @@ class Tree:
 
     def near(self, q: np.ndarray, radius: float) -> np.ndarray:
         return self.index.within(q, radius)
+
+    DENSE = 40
+    """More candidates than this in the 3 x 3 cells: :meth:`near_dist` answers in arrays."""
+
+    def near_dist(self, x: float, y: float, radius: float) -> tuple:
+        """Nodes within ``radius`` of (x, y) in increasing index order, and their distances:
+        two lists, or two arrays (int64, float64) in dense parts of the tree (more than
+        ``DENSE`` nodes in the 3 x 3 cells around the query; callers should switch to NumPy
+        there). Scans the cells when ``radius <= cell_size``, else the spatial index."""
+        if radius > self.cell_size:
+            idx = np.sort(self.index.within(np.array([x, y]), radius))
+            p = self._xy[idx]
+            return idx, np.hypot(p[:, 0] - x, p[:, 1] - y)
+        ci = math.floor(x * self._inv_cell)
+        cj = math.floor(y * self._inv_cell)
+        cells = self._cells
+        cand: list[int] = []
+        for a in (ci - 1, ci, ci + 1):
+            for b in (cj - 1, cj, cj + 1):
+                cell = cells.get((a, b))
+                if cell is not None:
+                    cand += cell
+        cand.sort()
+        r2 = radius * radius
+        if len(cand) > self.DENSE:
+            idx = np.array(cand)
+            p = self._xy[idx]
+            dx, dy = p[:, 0] - x, p[:, 1] - y
+            keep = np.nonzero(dx * dx + dy * dy <= r2)[0]
+            return idx[keep], np.hypot(dx[keep], dy[keep])
+        xs, ys = self.xs, self.ys
+        out_i: list[int] = []
+        out_d: list[float] = []
+        hypot = math.hypot
+        for j in cand:
+            dx = xs[j] - x
+            dy = ys[j] - y
+            if dx * dx + dy * dy <= r2:
+                out_i.append(j)
+                out_d.append(hypot(dx, dy))
+        return out_i, out_d
 
     def path_to(self, i: int) -> np.ndarray:
         """(M, 2) node positions from the root to node i."""
