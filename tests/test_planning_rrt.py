@@ -134,6 +134,7 @@ def test_sampler_tree_anchors_and_uniform_window() -> None:
         adaptive_rays=False,
         uniform_fraction=0.2,
         uniform_margin=1.0,
+        window_stall=0,  # fixed window (the tree below never gets nearer the goal)
     )
     start, goal = np.array([0.0, 0.0]), np.array([5.0, 0.0])
     smp = GoalVectorSampler(cfg, record=True)
@@ -159,6 +160,37 @@ def test_sampler_tree_anchors_and_uniform_window() -> None:
         assert abs(dth) <= math.radians(cfg.angular_spread_deg) + 1e-12
         assert abs(lat) <= cfg.lateral_spread + 1e-12
     assert 0.4 < from_tree / (~uni).sum() < 0.6
+
+
+def test_uniform_window_grows_while_the_tree_stalls_and_resets_on_progress() -> None:
+    cfg = GoalVectorConfig(
+        uniform_fraction=0.1, uniform_margin=1.0, window_stall=50, stall_uniform_fraction=0.4
+    )
+    start, goal = np.array([10.0, 10.0]), np.array([15.0, 10.0])
+    bounds = (0.0, 0.0, 30.0, 20.0)
+    smp = GoalVectorSampler(cfg, bounds=bounds, record=True)
+    smp.reset(start, goal, np.random.default_rng(1))
+    tree = Tree(start)
+
+    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
+        k0 = len(smp.log)
+        xs = np.array([smp.sample(tree) for _ in range(n)])
+        uni = np.array([r[1] == GoalVectorSampler.UNIFORM_RAY for r in smp.log[k0:]])
+        return xs, uni
+
+    xs, uni = draw(50)  # no progress yet, but not for window_stall samples: local window
+    assert smp.stall < 50 and np.all((xs[uni] >= [9.0, 9.0]) & (xs[uni] <= [16.0, 11.0])), (
+        "uniform samples outside the local window before the stall"
+    )
+    xs, uni = draw(3000)  # stalled: wider window (up to the bounds), more uniform samples
+    assert 0.33 < uni.mean() < 0.47
+    assert np.all((xs[uni] >= [0.0, 0.0]) & (xs[uni] <= [30.0, 20.0]))
+    assert xs[uni][:, 0].min() < 2.0 and xs[uni][:, 1].max() > 18.0
+    # progress (a node nearer the goal) resets the stall and the window
+    tree.add(np.array([12.0, 10.0]), 0, 2.0)
+    xs, uni = draw(40)
+    assert smp.stall < 40
+    assert np.all((xs[uni] >= [9.0, 9.0]) & (xs[uni] <= [16.0, 11.0]))
 
 
 def test_rewiring_never_increases_any_cost(doorway, monkeypatch) -> None:
@@ -434,6 +466,9 @@ def test_goal_vector_sampler_is_deterministic_per_generator() -> None:
         ("open_visits", -1),
         ("ray_overshoot", -0.5),
         ("ray_overshoot", float("nan")),
+        ("window_stall", -1),
+        ("stall_uniform_fraction", 1.0),
+        ("stall_uniform_fraction", -0.1),
     ],
 )
 def test_goal_vector_config_errors_name_the_field(field: str, value) -> None:
@@ -446,7 +481,12 @@ def test_goal_vector_config_errors_name_the_field(field: str, value) -> None:
 # x = 4.9, 4.83), while +-60 deg (x = 4.65) and wider are open by at least two grid cells.
 WALL_START, WALL_GOAL = np.array([4.4, 1.5]), np.array([6.0, 1.5])
 OPEN_CFG = GoalVectorConfig(
-    alpha_deg=30.0, open_rays=True, open_visits=10**6, stall_samples=20, uniform_fraction=0.0
+    alpha_deg=30.0,
+    open_rays=True,
+    open_visits=10**6,
+    stall_samples=20,
+    uniform_fraction=0.0,
+    window_stall=0,  # ray samples only, however long the start's samples keep failing
 )
 
 

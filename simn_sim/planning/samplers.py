@@ -64,6 +64,16 @@ class GoalVectorConfig(Config):
     """Fraction of samples drawn uniformly over the local window: the bounding box of start and
     goal padded by ``uniform_margin`` (and clipped to the planner's bounds, if any)."""
     uniform_margin: float = 3.0
+    window_stall: int = 100
+    """Global stall: after this many samples in a row without the tree getting nearer the goal
+    (by ``progress_min``; never once it has reached the goal), the uniform fraction becomes
+    ``stall_uniform_fraction`` and the local window's margin doubles, and again after each
+    further ``window_stall`` samples, up to the planner's bounds (without bounds: up to
+    ``4 * uniform_margin``); progress shrinks it back. 0 = off (fixed window and fraction)."""
+    stall_uniform_fraction: float = 0.3
+    """``uniform_fraction`` while the window is grown (``window_stall``): a goal-directed
+    sampler that has stopped getting nearer is in a trap (a long detour, a door behind it),
+    where uniform samples' Voronoi bias finds the way out."""
     tree_anchor_fraction: float = 0.3
     """Fraction of ray samples cast from a random tree node instead of the start (0 and
     ``frontier_anchor_fraction = 0`` = the paper's sampler: rays from the robot only)."""
@@ -145,6 +155,8 @@ class GoalVectorConfig(Config):
             "uniform_margin",
             ">= 0",
         )
+        require(self.window_stall >= 0, n, "window_stall", ">= 0")
+        require(0 <= self.stall_uniform_fraction < 1, n, "stall_uniform_fraction", "in [0, 1)")
         require(0 <= self.tree_anchor_fraction <= 1, n, "tree_anchor_fraction", "in [0, 1]")
         require(0 <= self.frontier_anchor_fraction <= 1, n, "frontier_anchor_fraction", "in [0, 1]")
         require(
@@ -297,8 +309,14 @@ class GoalVectorSampler:
     frontier sample into the wall. With ``cfg.adaptive_rays`` the fan cast from an anchor has the
     rays ``|k| <= initial_rays + visits // stall_samples``: rays from a fresh node point at the
     goal, and the fan widens as that node's samples keep failing. ``visit_penalty = 0`` keeps the
-    frontier at the node nearest the goal; both anchor fractions 0 and ``adaptive_rays=False`` is
-    the paper's sampler.
+    frontier at the node nearest the goal; both anchor fractions 0, ``adaptive_rays=False`` and
+    ``window_stall=0`` is the paper's sampler.
+
+    When the whole tree stops getting nearer the goal (``cfg.window_stall`` samples in a row),
+    the uniform fraction rises to ``cfg.stall_uniform_fraction`` and the local uniform window
+    doubles its margin per further ``window_stall`` samples, up to the planner's bounds: a
+    goal-directed sampler in a trap (a long detour, a door behind the robot) gets uniform
+    sampling's Voronoi bias until the tree makes progress again.
 
     With a ``checker`` (and ``cfg.open_rays``) the sampler also looks at the map before casting:
     for each anchor it tests its rays in the order 0, -1, 1, -2, 2, ... and keeps the open ones
@@ -362,6 +380,10 @@ class GoalVectorSampler:
         self.best_index = 0
         """Tree node nearest the goal so far."""
         self.best_distance = math.inf
+        self._mark = math.inf
+        self.stall = 0
+        """Samples since the tree last got nearer the goal by ``progress_min`` (0 once a node
+        is within ``progress_min`` of the goal)."""
         self.anchor_index = -1
         """Tree node the last ray sample was cast from (-1: uniform sample, or no tree)."""
         self.h: list[float] = []
@@ -385,7 +407,22 @@ class GoalVectorSampler:
         self._k = self._n = 0
         self._batch_next = self.first_batch
         self.log = []
+        self._win = self._window(self.cfg.uniform_margin)
         self._clear()
+
+    def _window(self, margin: float) -> tuple[float, float, float, float]:
+        """Lower corner and size (x0, y0, w, h) of the local uniform window with this margin
+        (plain floats: computed once per plan and on growth)."""
+        sx, sy = self.start.tolist()
+        gx, gy = self._gx, self._gy
+        x0, y0 = min(sx, gx) - margin, min(sy, gy) - margin
+        x1, y1 = max(sx, gx) + margin, max(sy, gy) + margin
+        if self.bounds is not None:
+            bx0, by0, bx1, by1 = self.bounds
+            x0, y0 = min(max(x0, bx0), bx1), min(max(y0, by0), by1)
+            x1, y1 = min(max(x1, bx0), bx1), min(max(y1, by0), by1)
+        x1, y1 = max(x1, x0 + 1e-6), max(y1, y0 + 1e-6)
+        return x0, y0, x1 - x0, y1 - y0
 
     @property
     def frontier(self) -> int:
@@ -409,16 +446,17 @@ class GoalVectorSampler:
         u[1] **= cfg.radial_power
         u[2] = (2.0 * u[2] - 1.0) * cfg.lateral_spread
         u[3] = (2.0 * u[3] - 1.0) * self._spread
-        lo = np.minimum(self.start, self.goal) - cfg.uniform_margin
-        hi = np.maximum(self.start, self.goal) + cfg.uniform_margin
-        if self.bounds is not None:
-            lo = np.clip(lo, self.bounds[:2], self.bounds[2:])
-            hi = np.clip(hi, self.bounds[:2], self.bounds[2:])
-        hi = np.maximum(hi, lo + 1e-6)
-        self._unif = lo + u[7:].T * (hi - lo)
-        (self._ray_u, self._f, self._lat, self._jit, self._anchor_u, self._node_u, self._unif_u) = (
-            u[:7].tolist()
-        )
+        (
+            self._ray_u,
+            self._f,
+            self._lat,
+            self._jit,
+            self._anchor_u,
+            self._node_u,
+            self._unif_u,
+            self._ux,
+            self._uy,
+        ) = u.tolist()
         self._k, self._n = 0, n
 
     def sample(self, tree: Tree | None = None) -> np.ndarray:
@@ -435,9 +473,15 @@ class GoalVectorSampler:
             self._add_node(0, self.start.tolist())
         else:
             self._visit(self.anchor_index)
-        if self._unif_u[k] < cfg.uniform_fraction:
+        if self.best_distance < self._mark - cfg.progress_min:
+            self._mark = self.best_distance
+            self.stall = 0
+        elif self.best_distance > cfg.progress_min:  # (at the goal: refining, not stalled)
+            self.stall += 1
+        grow = self.stall // cfg.window_stall if cfg.window_stall > 0 else 0
+        if self._unif_u[k] < (cfg.uniform_fraction if grow == 0 else cfg.stall_uniform_fraction):
             self.anchor_index = -1
-            x = self._unif[k]
+            x = self._uniform(k, grow)
             if self.record:
                 self.log.append((x.copy(), self.UNIFORM_RAY, 0.0, 0.0, 0.0))
             return x
@@ -489,6 +533,17 @@ class GoalVectorSampler:
         if self.record:
             self.log.append((np.array([ax, ay]), ray, t, lat, jit))
         return x
+
+    def _uniform(self, k: int, grow: int) -> np.ndarray:
+        """Uniform sample k over the local window, its margin doubled ``grow`` times."""
+        if grow == 0:
+            x0, y0, w, h = self._win
+        else:
+            m = self.cfg.uniform_margin * 2.0 ** min(grow, 30)
+            if self.bounds is None:
+                m = min(m, 4.0 * self.cfg.uniform_margin)
+            x0, y0, w, h = self._window(m)
+        return np.array([x0 + self._ux[k] * w, y0 + self._uy[k] * h])
 
     def _open_fan(
         self, a: int, m: int, ax: float, ay: float, th: float, t_max: float
@@ -568,8 +623,9 @@ class GoalVectorSampler:
             self._visit(a)
             return
         h_min = math.inf
-        for i, xy in enumerate(tree.xy[self._seen : n].tolist(), self._seen):
-            h_min = min(h_min, self._add_node(i, xy))
+        xs, ys = tree.xs, tree.ys
+        for i in range(self._seen, n):
+            h_min = min(h_min, self._add_node(i, [xs[i], ys[i]]))
         self._seen = n
         if a >= 0 and not h_min < self.h[a] - self.cfg.progress_min:
             self._visit(a)
