@@ -184,27 +184,23 @@ class Tree:
         two lists, or two arrays (int64, float64) in dense parts of the tree (more than
         ``DENSE`` nodes in the 3 x 3 cells around the query; callers should switch to NumPy
         there). Scans the cells when ``radius <= cell_size``, else the spatial index."""
-        if radius > self.cell_size:
-            idx = np.sort(self.index.within(np.array([x, y]), radius))
-            p = self._xy[idx]
-            return idx, np.hypot(p[:, 0] - x, p[:, 1] - y)
         ci = math.floor(x * self._inv_cell)
         cj = math.floor(y * self._inv_cell)
         cells = self._cells
-        cand: list[int] = []
-        for a in (ci - 1, ci, ci + 1):
-            for b in (cj - 1, cj, cj + 1):
-                cell = cells.get((a, b))
-                if cell is not None:
-                    cand += cell
+        near = [
+            cell
+            for cell in (
+                cells.get((a, b)) for a in (ci - 1, ci, ci + 1) for b in (cj - 1, cj, cj + 1)
+            )
+            if cell is not None
+        ]
+        if radius > self.cell_size or sum(map(len, near)) > self.DENSE:
+            idx = np.sort(self.index.within(np.array([x, y]), radius))
+            p = self._xy[idx]
+            return idx, np.hypot(p[:, 0] - x, p[:, 1] - y)
+        cand = [i for cell in near for i in cell]
         cand.sort()
         r2 = radius * radius
-        if len(cand) > self.DENSE:
-            idx = np.array(cand)
-            p = self._xy[idx]
-            dx, dy = p[:, 0] - x, p[:, 1] - y
-            keep = np.nonzero(dx * dx + dy * dy <= r2)[0]
-            return idx[keep], np.hypot(dx[keep], dy[keep])
         xs, ys = self.xs, self.ys
         out_i: list[int] = []
         out_d: list[float] = []
