@@ -111,3 +111,62 @@ def test_initial_scan_maps_what_stands_behind_the_start(scan):
     else:
         assert clearance > 1.0  # never in view: unknown, so free
     e.close()
+
+
+def _room_with_chair_ahead():
+    """The room of ``_room_with_box_behind_start`` without the cube; 1.2 m ahead of the start
+    a chair turned away from the robot: its back (a thin plate, z 0.47-0.93) hides its seat
+    (0.44 m deep, top at z 0.5) from the camera at 1.0 m."""
+    from simn_sim.env.layout import Box
+
+    lay = _room_with_box_behind_start()
+    lay.boxes = [b for b in lay.boxes if b.name != "cube"]
+    c = (0.5, 0.5, 0.5, 1)
+    lay.boxes += [
+        Box("back", "chair", 1, (7.2, 4.0, 0.7), (0.0125, 0.22, 0.23), 0.0, c),
+        Box("seat", "chair", 1, (7.4325, 4.0, 0.475), (0.22, 0.22, 0.025), 0.0, c),
+    ]
+    return lay
+
+
+@pytest.mark.parametrize("shadow_depth", [0.0, 0.3])
+def test_occlusion_shadow_keeps_plans_off_a_seat_hidden_behind_its_back(shadow_depth):
+    from test_env import _env_with_layout
+
+    e = _env_with_layout(_room_with_chair_ahead(), width=320, height=240)
+    ep = {"episode_id": "chair", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
+    obs, info = e.reset(options={"episode": ep})
+    agent = make_agent("simn", e, {"shadow_depth": shadow_depth, "initial_scan_deg": 0.0})
+    agent.reset(obs, info)  # one view of the chair from 1.2 m
+    # agent (start) frame: the back's visible face at x = 1.1875, the seat to x = 1.6525
+    assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06  # the back is mapped
+    # a robot centred 0.15 m beyond the seat's far edge overlaps the seat (radius 0.25)
+    beside_seat = np.array([[1.80, 0.0]])
+    assert agent.safety.is_free(beside_seat)[0]  # the safety model keeps to what was seen
+    if shadow_depth:
+        assert not agent.checker.is_free(beside_seat)[0]
+        assert len(agent.shadow) > 0
+        # the robot's own side of the back has no shadow: in front of it stays free
+        assert agent.checker.is_free(np.array([[0.7, 0.0]]))[0]
+    else:
+        assert agent.shadow is None
+        assert agent.checker.is_free(beside_seat)[0]  # seen points alone: the seat is free
+    e.close()
+
+
+def test_shadows_are_cast_only_within_shadow_range():
+    from test_env import _env_with_layout
+
+    e = _env_with_layout(_room_with_chair_ahead(), width=320, height=240)
+    ep = {"episode_id": "chair", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
+    obs, info = e.reset(options={"episode": ep})
+    agent = make_agent("simn", e, {"shadow_range": 0.9, "initial_scan_deg": 0.0})
+    agent.reset(obs, info)  # the back is 0.97 m from the camera: beyond 0.9 m
+    assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
+    assert len(agent.shadow) == 0 and agent.checker.is_free(np.array([[1.80, 0.0]]))[0]
+    e.close()
+
+
+def test_shadow_config_is_validated(env):
+    with pytest.raises(ConfigError, match="shadow_depth"):
+        make_agent("simn", env.unwrapped, {"shadow_depth": 0.01})

@@ -31,6 +31,7 @@ from typing import Any, Literal
 import numpy as np
 
 from simn_sim.agents.base import register_agent
+from simn_sim.agents.shadow import OcclusionShadow, below_top_contour
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
@@ -94,6 +95,20 @@ class SimnAgentConfig(Config):
     initial_scan_deg: float = 360.0
     scan_rate: float = 1.2  # rad/s while scanning
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
+    # occlusion shadows (``simn_sim.agents.shadow``, pose_source "slam"): the space up to this
+    # far (m) behind each seen obstacle point, below its continued camera ray, counts as
+    # occupied for planning until a depth image sees through it (a chair seen from behind
+    # hides its seat behind its back); cleared cells leave the collision model at the next
+    # rebuild (every rebuild_every steps, and before a replan for a missing or blocked path);
+    # 0: off
+    shadow_depth: float = 0.3
+    # only obstacle points within this horizontal range of the camera cast shadows: what is
+    # hidden near the robot is what it can hit next, while a shadow cast from afar through a
+    # door jamb seen at a slant closes the doorway until the robot has looked through it
+    shadow_range: float = 1.5
+    # only points of surfaces whose top edge is in view cast shadows (``below_top_contour``,
+    # contours are depth jumps above this many metres): walls and door jambs do not
+    shadow_edge_jump: float = 0.15
     # topological guidance over the local frames (pose_source="slam"): see SimnAgent._subgoal
     topo_guidance: bool = True
     topo_reach: float = 0.6  # a route node this close to the robot counts as reached (m)
@@ -126,6 +141,14 @@ class SimnAgentConfig(Config):
         require(0 <= self.initial_scan_deg <= 720, n, "initial_scan_deg", "must be in [0, 720]")
         require(self.scan_rate > 0, n, "scan_rate", "must be > 0")
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
+        require(
+            self.shadow_depth == 0 or self.shadow_depth >= self.collision.resolution,
+            n,
+            "shadow_depth",
+            f"must be 0 (off) or >= the collision resolution ({self.collision.resolution} m)",
+        )
+        require(self.shadow_range > 0, n, "shadow_range", "must be > 0")
+        require(self.shadow_edge_jump > 0, n, "shadow_edge_jump", "must be > 0")
         require(self.window > 0, n, "window", "must be > 0")
         require(self.path_clearance >= 0, n, "path_clearance", "must be >= 0 (0: off)")
         require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
@@ -234,6 +257,12 @@ class SimnAgent:
         self._track_ms: float | None = None
         self.slam = None
         self._anchors_version = 0
+        self.shadow = (
+            OcclusionShadow(self.cfg.collision.resolution, self.cfg.shadow_depth)
+            if self.cfg.shadow_depth > 0 and self.cfg.pose_source == "slam"
+            else None
+        )
+        self._shadow_dirty = False  # shadow cells were cleared since the last rebuild
         self._best_goal_dist = math.inf  # the robot's closest approach to the goal so far
         self._route_kind = "goal_unexplored"
         if self.cfg.pose_source == "slam":
@@ -274,8 +303,16 @@ class SimnAgent:
             self._track_ms, self._map_ms = fr.track_ms, fr.map_ms
             self.track_failures += int(not fr.success)
             self.revisits += int(fr.revisit_accepted)
-            rebuild = self.slam.anchors_version != self._anchors_version or (
-                self.steps % self.cfg.rebuild_every == 0
+            new_shadow = self._observe_shadow(
+                fr.obstacle_points_world,
+                T_wc,
+                obs["depth"],
+                self.intr,
+                None if fr.pixels is None else fr.pixels[fr.labels == OBSTACLE],
+            )
+            rebuild = (
+                self.slam.anchors_version != self._anchors_version
+                or self.steps % self.cfg.rebuild_every == 0
             )
             if rebuild:
                 # anchors moved (pose graph) or periodic refresh: rebuild the collision model from
@@ -285,9 +322,11 @@ class SimnAgent:
             else:
                 P = fr.obstacle_points_world
                 self._update_maps(P, np.full(len(P), OBSTACLE, np.int8))
+                self._add_shadow(new_shadow)
             return T_wc
         d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
-        P = backproject(np.where(d <= self.cfg.obstacle_max_depth, d, 0.0), intr).reshape(-1, 3)
+        dm = np.where(d <= self.cfg.obstacle_max_depth, d, 0.0)
+        P = backproject(dm, intr).reshape(-1, 3)
         P = P[P[:, 2] > 0]
         if len(P):
             Pw = transform_points(T_wc, P.astype(np.float64))
@@ -337,7 +376,8 @@ class SimnAgent:
             self._carved_since_rebuild = False
 
     def _rebuild_maps(self, obstacle_points: np.ndarray) -> None:
-        """Rebuild both collision models from ``obstacle_points`` plus the bump points."""
+        """Rebuild both collision models from ``obstacle_points`` plus the bump points (and the
+        planning model's shadow cells)."""
         self.checker.reset()
         self.safety.reset()
         pts = (
@@ -346,6 +386,51 @@ class SimnAgent:
             else obstacle_points
         )
         self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
+        if self.shadow is not None:
+            self._add_shadow(self.shadow.shadow)
+            self._shadow_dirty = False
+
+    def _refresh_shadow(self) -> None:
+        """Before an event replan: drop the shadow cells seen free since the last rebuild."""
+        if self._shadow_dirty and self.slam is not None:
+            self._rebuild_maps(self.slam.obstacle_points_world())
+
+    def _observe_shadow(
+        self,
+        obstacle_points: np.ndarray,
+        T_wc: np.ndarray,
+        depth: np.ndarray,
+        intr: Intrinsics,
+        pixels: np.ndarray | None,
+    ) -> np.ndarray:
+        """Feed one view to the occlusion shadows; returns the keys of the new shadow cells.
+        ``pixels``: (row, column) of each obstacle point in ``depth``; only points below a
+        visible top contour cast shadows (``below_top_contour``)."""
+        if self.shadow is None:
+            return np.zeros(0, np.int64)
+        c = self.cfg.collision
+        band = (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
+        band &= np.hypot(*(obstacle_points[:, :2] - T_wc[:2, 3]).T) <= self.cfg.shadow_range
+        if pixels is None:
+            raise ValueError("occlusion shadows need the pixel of each obstacle point")
+        if len(pixels):
+            hw = max(1, round(3 * depth.shape[1] / 320))
+            topped = below_top_contour(depth, self.cfg.shadow_edge_jump, hw)
+            band &= topped[pixels[:, 0], pixels[:, 1]]
+        xy = (T_wc @ inv_T(self.T_base_cam))[:2, 3]
+        n_cleared = self.shadow.traverse(xy, c.robot_radius)
+        new, n_seen = self.shadow.observe(obstacle_points[band], T_wc, depth, intr)
+        self._shadow_dirty |= n_cleared + n_seen > 0
+        return new
+
+    def _add_shadow(self, keys: np.ndarray) -> None:
+        """Shadow cells go into the planning model only: the safety model (and with it the
+        recovery behaviour) keeps to what was seen."""
+        if self.shadow is None or not len(keys):
+            return
+        xy = self.shadow.centres(keys)
+        z = np.full((len(xy), 1), 0.5 * (self.cfg.collision.z_min + self.cfg.collision.z_max))
+        self.checker.update(np.hstack([xy, z]), np.full(len(xy), OBSTACLE, np.int8))
 
     def _update_maps(self, points: np.ndarray, labels: np.ndarray) -> None:
         if len(points):
@@ -566,7 +651,8 @@ class SimnAgent:
         xy = pose[:2]
         self._best_goal_dist = min(self._best_goal_dist, float(np.hypot(*(xy - self.goal))))
         self._plan_ms = None
-        if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
+        # (the safety model: the planning model's occlusion shadows are no contact)
+        if float(self.safety.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
             self.path = None
             return self._escape(pose)
@@ -583,6 +669,7 @@ class SimnAgent:
             return np.array([0.0, min(self.cfg.scan_rate, self.follower_cfg.w_max)], np.float32)
         self.since_plan += 1
         if self.path is None:
+            self._refresh_shadow()
             self._plan(xy)
         elif self._job is not None or self.since_plan >= self.cfg.replan_every:
             if self.cfg.plan_slice > 0:
@@ -593,6 +680,7 @@ class SimnAgent:
             return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
         cmd = self.follower.step(pose)
         if cmd.status in ("blocked", "stale"):
+            self._refresh_shadow()
             self._plan(xy)
             if self.path is None:
                 return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
