@@ -236,7 +236,10 @@ def main() -> None:
     names = ["goal_vector"]
     if args.paper_sampler:
         gv_cfg["goal_vector_paper"] = gv_cfg["goal_vector"].replace(
-            tree_anchor_fraction=0.0, frontier_anchor_fraction=0.0, adaptive_rays=False
+            tree_anchor_fraction=0.0,
+            frontier_anchor_fraction=0.0,
+            adaptive_rays=False,
+            window_stall=0,  # no stall widening: the paper's fixed fan only
         )
         names.append("goal_vector_paper")
     names.append("uniform")
