@@ -97,6 +97,13 @@ class NeuralPointsConfig(Config):
     idw_power: float = 2.0  # paper eq.: 1; PIN-SLAM reference code: 2
     feature_init_std: float = 0.01
     query_chunk: int = 8192  # queries per k-NN chunk (bounds memory)
+    # Neighbour weights of the per-neighbour decoding and of the geometric prior (the paper's
+    # interpolated decoding without the prior always uses IDW): "idw" = 1 / d^idw_power;
+    # "gaussian" = exp(-d^2 / (2 gaussian_width^2)), which averages the neighbours' planes
+    # instead of following the nearest one (on noisy depth the nearest plane is offset by the
+    # noise and the blended SDF gets cm-scale steps where registration stalls; docs/mapping.md)
+    weighting: Literal["idw", "gaussian"] = "idw"
+    gaussian_width: float = 0.05
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -114,6 +121,12 @@ class NeuralPointsConfig(Config):
         )
         require(self.feature_init_std >= 0, n, "feature_init_std", "must be >= 0")
         require(self.query_chunk >= 1, n, "query_chunk", "must be >= 1")
+        require(
+            _finite(self.gaussian_width) and self.gaussian_width > 0,
+            n,
+            "gaussian_width",
+            "must be > 0",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,11 +141,44 @@ class DecoderConfig(Config):
     # coordinates); "absolute": p in map coordinates; "none": features (and colour) only.
     position_input: Literal["relative", "absolute", "none"] = "relative"
     use_color: bool = True
+    # "interpolated": the decoder sees the IDW-interpolated feature and colour and p relative
+    # to the neighbours' IDW centroid (the paper's equation); "per_neighbor" (PIN-SLAM): each
+    # of the k neighbours' features is decoded with p relative to that neural point, and the k
+    # SDF values are IDW-blended (no centroid that jumps when the neighbour set changes).
+    decoding: Literal["interpolated", "per_neighbor"] = "interpolated"
+    # Geometric prior: every neural point carries the mean observed surface point q_k and
+    # normal n_k of its voxel; the SDF is the IDW blend of the point-to-plane distances
+    # n_k . (p - q_k) plus the MLP's output as a learned residual (its last layer starts at
+    # zero, so an untrained map is the prior). ``residual: false`` is the prior alone (the
+    # ablation; nothing is learned).
+    geometric_prior: bool = False
+    residual: bool = True
+    # the prior blends only the neighbours whose normal is within this angle of the nearest
+    # neighbour's (keeps creases sharp instead of rounding them over the blending width);
+    # 180: all
+    prior_normal_gate_deg: float = 180.0
+    # "own": each neighbour's plane uses its own mean normal; "blended": every neighbour's
+    # plane point with the weighted mean of the (gated) neighbours' normals, i.e. the implicit
+    # MLS surface n(x) . (x - q(x)): a neighbour's normal error no longer acts over the lever
+    # arm from its plane point to the query (docs/mapping.md)
+    prior_normal: Literal["own", "blended"] = "own"
 
     def validate(self) -> None:
         n = type(self).__name__
         require(self.hidden_dim >= 1, n, "hidden_dim", "must be >= 1")
         require(self.hidden_layers >= 1, n, "hidden_layers", "must be >= 1")
+        require(
+            0 < self.prior_normal_gate_deg <= 180,
+            n,
+            "prior_normal_gate_deg",
+            "must be in (0, 180]",
+        )
+        require(
+            self.residual or self.geometric_prior,
+            n,
+            "residual",
+            "false (no learned term) needs geometric_prior true",
+        )
 
 
 @dataclasses.dataclass(frozen=True)

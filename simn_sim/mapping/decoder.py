@@ -40,23 +40,49 @@ class Decoder(nn.Module):
 
     @torch.no_grad()
     def reset_parameters(self, generator: torch.Generator | None = None) -> None:
-        """PyTorch's default Linear init, drawn from ``generator`` (no global RNG)."""
+        """PyTorch's default Linear init, drawn from ``generator`` (no global RNG). With the
+        geometric prior the last layer starts at zero: the untrained residual is 0."""
         for m in self.mlp:
             if isinstance(m, nn.Linear):
                 bound = 1.0 / math.sqrt(m.in_features)
                 nn.init.uniform_(m.weight, -bound, bound, generator=generator)
                 nn.init.uniform_(m.bias, -bound, bound, generator=generator)
+        if self.cfg.geometric_prior:
+            self.mlp[-1].weight.zero_()
+            self.mlp[-1].bias.zero_()
 
     def forward(
-        self, features: torch.Tensor, colors: torch.Tensor, positions: torch.Tensor
+        self,
+        features: torch.Tensor,
+        colors: torch.Tensor,
+        positions: torch.Tensor,
+        weights: torch.Tensor | None = None,
+        prior: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """features (N, D), colors (N, 3), positions (N, 3) (as prepared by the map) -> sdf (N,)."""
-        parts = [features]
-        if self.cfg.use_color:
-            parts.append(colors)
-        if self.cfg.position_input != "none":
-            parts.append(positions)
-        return self.mlp(torch.cat(parts, dim=1)).squeeze(1)
+        """Interpolated inputs: features (N, D), colors (N, 3), positions (N, 3) (as prepared
+        by the map) -> sdf (N,), plus ``prior`` (N,) when given.
+
+        Per-neighbour inputs: features (N, k, D), colors (N, k, 3), positions (N, k, 3) and
+        IDW ``weights`` (N, k) (normalised) -> ``sum_k w_k (prior_k + mlp_k)`` (N,), with the
+        per-neighbour ``prior`` (N, k) when given. ``cfg.residual`` False drops the MLP term.
+        """
+        per_nb = features.ndim == 3
+        if self.cfg.residual:
+            parts = [features]
+            if self.cfg.use_color:
+                parts.append(colors)
+            if self.cfg.position_input != "none":
+                parts.append(positions)
+            out = self.mlp(torch.cat(parts, dim=-1)).squeeze(-1)
+        else:
+            out = torch.zeros(features.shape[:-1], dtype=features.dtype, device=features.device)
+        if prior is not None:
+            out = out + prior
+        if per_nb:
+            if weights is None:
+                raise ValueError("per-neighbour decoding needs the IDW weights")
+            out = (weights * out).sum(-1)
+        return out
 
     def copy(self) -> Decoder:
         """An independent deep copy (for a new local frame that starts from this decoder)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import time
 from pathlib import Path
 
@@ -24,7 +25,13 @@ from simn_sim.geometry.camera import Intrinsics
 from simn_sim.mapping.config import MapperConfig
 from simn_sim.mapping.decoder import Decoder
 from simn_sim.mapping.losses import EWC, bce_sdf_loss, diagonal_fisher, eikonal_loss
-from simn_sim.mapping.neural_points import FeaturePoints, NeuralPointMap, idw_interpolate
+from simn_sim.mapping.neural_points import (
+    FeaturePoints,
+    NeuralPointMap,
+    gaussian_weights,
+    idw_interpolate,
+    idw_weights,
+)
 from simn_sim.mapping.perception import EmptyFrameError, rgbd_to_points, voxel_downsample
 from simn_sim.mapping.replay import ReplayPool
 from simn_sim.mapping.sampling import sample_rays
@@ -168,6 +175,7 @@ class ImplicitMap:
         self._pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         self._n_pending = 0
         self.frame_count = 0
+        self.n_trainings = 0  # calls of train() that changed the map
         self.last_train: TrainResult | None = None
 
     # ------------------------------------------------------------------ integration
@@ -178,11 +186,15 @@ class ImplicitMap:
         colors: np.ndarray | torch.Tensor | None = None,
         labels: np.ndarray | torch.Tensor | None = None,
         train: bool | None = None,
+        normals: np.ndarray | torch.Tensor | None = None,
     ) -> FrameResult:
         """Add one frame of camera-frame points seen from pose ``T_map_cam``.
 
         points_cam: (N, 3) float, OpenCV camera frame. colors: (N, 3) in [0, 1] (float) or
         uint8. labels: (N,) integer semantic labels (0 unknown). Non-finite points are dropped.
+        normals: (N, 3) camera-frame surface normals (NaN: unknown), used by the decoder's
+        geometric prior; when the prior is on and none are given they are estimated from the
+        frame's points (PCA of the 8 nearest).
         ``train``: force (True) or skip (False) training; by default every ``train_every``-th
         frame trains. Raises :class:`EmptyFrameError` for a frame without a finite point.
         """
@@ -197,21 +209,53 @@ class ImplicitMap:
         n_dropped = int(n_in - finite.sum())
         if n_dropped == n_in:
             raise EmptyFrameError(f"integrate_frame: all {n_in} points are NaN/inf")
+        use_prior = self.decoder.cfg.geometric_prior
+        nrm = None
+        if use_prior and normals is not None:
+            nrm = _as_float_points(normals, "normals").detach().cpu().numpy().astype(np.float32)
+            if nrm.shape[0] != n_in:
+                raise ValueError(f"normals must be ({n_in}, 3), got {nrm.shape}")
         if n_dropped:
             pts, cols = pts[finite], cols[finite]
             labs = None if labs is None else labs[finite]
+            nrm = None if nrm is None else nrm[finite]
+        full = (pts, nrm)  # the planes take every point with a normal, not the down-sampled
         if self.cfg.integrate_voxel_size > 0:
-            pts, cols, labs = voxel_downsample(pts, self.cfg.integrate_voxel_size, cols, labs)
+            if nrm is not None:  # average the normals with the colours (NaN rows: none)
+                has = np.isfinite(nrm).all(1)
+                ext = np.concatenate([cols, np.where(has[:, None], nrm, 0.0)], 1)
+                pts, ext, labs = voxel_downsample(pts, self.cfg.integrate_voxel_size, ext, labs)
+                cols, nrm = ext[:, :3], ext[:, 3:]
+                nn_ = np.linalg.norm(nrm, axis=1, keepdims=True)
+                nrm = np.where(nn_ > 0.5, nrm / np.maximum(nn_, 1e-9), np.nan).astype(np.float32)
+            else:
+                pts, cols, labs = voxel_downsample(pts, self.cfg.integrate_voxel_size, cols, labs)
+        if use_prior and nrm is None:
+            nrm = estimate_normals(pts)
         pts_map = (pts.astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
         dev = self.device
         p_t = torch.from_numpy(pts_map).to(dev)
+        n_map = None
+        if nrm is not None:
+            n_map = torch.from_numpy((nrm.astype(np.float64) @ T[:3, :3].T).astype(np.float32))
         new_ids = self.points.add_points(
             p_t,
             torch.from_numpy(cols).to(dev),
             None if labs is None else torch.from_numpy(labs.astype(np.int16)).to(dev),
+            None if (n_map is None or full[1] is not None) else n_map.to(dev),
         )
+        if full[1] is not None:
+            fp, fn = full
+            has = np.isfinite(fn).all(1)
+            fp = (fp[has].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
+            fn = (fn[has].astype(np.float64) @ T[:3, :3].T).astype(np.float32)
+            self.points.accumulate_planes(
+                torch.from_numpy(fp).to(dev), torch.from_numpy(fn).to(dev)
+            )
         origin = torch.from_numpy(T[:3, 3].astype(np.float32)).to(dev)
-        samples = sample_rays(p_t, origin, self.cfg.sampling, self.generator)
+        samples = sample_rays(
+            p_t, origin, self.cfg.sampling, self.generator, None if n_map is None else n_map.to(dev)
+        )
         self._add_pending(samples.points, samples.sdf, samples.kind)
         self.frame_count += 1
         do_train = (
@@ -296,6 +340,12 @@ class ImplicitMap:
             return TrainResult(0, False, float("nan"), 0, 0, 0.0)
         Xn, Sn, Kn = (torch.cat(t) for t in zip(*self._pending, strict=True))
         self._pending, self._n_pending = [], 0
+        if not self.decoder.cfg.residual:  # the geometric prior alone: nothing to learn
+            if tc.use_replay:
+                self.replay.add(Xn, Sn, Kn, self.generator)
+            res = TrainResult(0, True, float("nan"), 0, 0, time.perf_counter() - t0)
+            self.last_train = res
+            return res
         n_new = Xn.shape[0]
         if tc.use_replay and len(self.replay) > 0:
             m = int(round(n_new * tc.replay_ratio / (1.0 - tc.replay_ratio)))
@@ -319,6 +369,8 @@ class ImplicitMap:
         lidx[nbv] = local
         nb_pos = self.points.positions[active][lidx]
         nb_col = self.points.colors[active][lidx]
+        q_all, n_all = self.points.planes()
+        nb_q, nb_n = q_all[active][lidx], n_all[active][lidx]
         feat = self.points.features[active].clone().requires_grad_(True)
         opt = torch.optim.Adam(
             [
@@ -329,7 +381,6 @@ class ImplicitMap:
         new_ids = torch.nonzero(~old).squeeze(1)
         old_ids = torch.nonzero(old).squeeze(1)
         use_ewc = tc.use_ewc and self.ewc.active and tc.ewc_weight > 0
-        power = self.cfg.points.idw_power
         losses: list[float] = []
         converged = False
         it = 0
@@ -365,8 +416,11 @@ class ImplicitMap:
                 x = x.clone()
                 xe = x[:ne].requires_grad_(True)
                 x = torch.cat([xe, x[ne:]])
-            f, c, ctr = idw_interpolate(x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], power)
-            pred = self._decode(x, f, c, ctr)
+            pred = self.decoder(
+                *self._decoder_inputs(
+                    x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
+                )
+            )
             loss = tc.bce_weight * bce_sdf_loss(pred, S[bi], tc.sigma)
             if ne:
                 (g,) = torch.autograd.grad(pred[:ne].sum(), xe, create_graph=True)
@@ -386,6 +440,7 @@ class ImplicitMap:
                     break
         with torch.no_grad():
             self.points.features[active] = feat.detach()
+        self.n_trainings += 1
         Xnv, Snv, Knv = X[~old], S[~old], K[~old]
         if tc.use_replay:
             self.replay.add(Xnv, Snv, Knv, self.generator)
@@ -411,14 +466,13 @@ class ImplicitMap:
         idx, _ = self.points.knn(X)
         ok = idx[:, 0] >= 0
         X, S, idx = X[ok], S[ok], idx[ok]
-        if X.shape[0] == 0:
+        if X.shape[0] == 0 or not self.decoder.cfg.residual:
             return
         with torch.no_grad():
-            f, c, ctr = self.points.interpolate(X, idx)
-            pin = self._position_input(X, ctr)
+            inputs = self._decoder_inputs(X, *self._gather(idx))
         sigma = self.cfg.training.sigma
         fisher = diagonal_fisher(
-            self.decoder, (f, c, pin), S, lambda out, y: bce_sdf_loss(out, y, sigma)
+            self.decoder, inputs, S, lambda out, y: bce_sdf_loss(out, y, sigma)
         )
         if self.cfg.training.ewc_normalize:
             mean = torch.cat([v.reshape(-1) for v in fisher.values()]).mean().clamp(min=1e-30)
@@ -433,18 +487,78 @@ class ImplicitMap:
             return (x - centroid) / self.cfg.points.search_radius
         return x  # "absolute" (and ignored by the decoder for "none")
 
-    def _decode(
-        self, x: torch.Tensor, feat: torch.Tensor, col: torch.Tensor, centroid: torch.Tensor
-    ) -> torch.Tensor:
-        """The decoder on interpolated inputs at map-frame points ``x`` -> sdf (N,)."""
-        return self.decoder(feat, col, self._position_input(x, centroid))
+    def _gather(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Neighbour tables of (Q, k) global indices (-1 = none): positions, validity,
+        features, colours, plane points and plane normals."""
+        ic = idx.clamp(min=0)
+        p = self.points
+        q, n = p.planes()
+        return p.positions[ic], idx >= 0, p.features[ic], p.colors[ic], q[ic], n[ic]
+
+    def _decoder_inputs(
+        self,
+        x: torch.Tensor,
+        nb_pos: torch.Tensor,
+        nb_valid: torch.Tensor,
+        nb_feat: torch.Tensor,
+        nb_col: torch.Tensor,
+        nb_q: torch.Tensor,
+        nb_n: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
+        """The decoder's inputs at map-frame points ``x`` (Q, 3) from their k neighbours'
+        tables (Q, k, ...): ``(f, c, pos)`` for the interpolated decoding without the prior
+        (the paper's), else ``(f, c, pos, weights, prior)`` (see :meth:`Decoder.forward`)."""
+        dc = self.decoder.cfg
+        power = self.cfg.points.idw_power
+        if dc.decoding == "interpolated" and not dc.geometric_prior:
+            f, c, ctr = idw_interpolate(x, nb_pos, nb_valid, nb_feat, nb_col, power)
+            return f, c, self._position_input(x, ctr)
+        pc = self.cfg.points
+        if pc.weighting == "gaussian":
+            w = gaussian_weights(x, nb_pos, nb_valid, pc.gaussian_width)  # (Q, k)
+        else:
+            w = idw_weights(x, nb_pos, nb_valid, power)
+        prior = torch.zeros_like(w)
+        if dc.geometric_prior:
+            # point-to-plane distance to each neighbour's mean surface plane; neighbours
+            # without a normal take the blend of those with one
+            has = (nb_n.abs().sum(-1) > 0) & nb_valid
+            if dc.prior_normal_gate_deg < 180:
+                cos_gate = math.cos(math.radians(dc.prior_normal_gate_deg))
+                near = (nb_n * nb_n[:, :1]).sum(-1) >= cos_gate  # column 0: the nearest
+                has = has & (near | ~has[:, :1])
+            wh = w * has
+            nrm = nb_n
+            if dc.prior_normal == "blended":
+                nb_ = (wh[..., None] * nb_n).sum(1, keepdim=True)
+                nrm = nb_ / nb_.norm(dim=-1, keepdim=True).clamp(min=1e-9)
+            d = ((x[:, None, :] - nb_q) * nrm).sum(-1)
+            blend = (wh * d).sum(1, keepdim=True) / wh.sum(1, keepdim=True).clamp(min=1e-12)
+            prior = torch.where(has, d, blend)
+        if dc.decoding == "interpolated":
+            f = (w[..., None] * nb_feat).sum(1)
+            c = (w[..., None] * nb_col).sum(1)
+            ctr = (w[..., None] * nb_pos).sum(1)
+            return f, c, self._position_input(x, ctr), torch.ones_like(w[:, 0]), (w * prior).sum(1)
+        if dc.position_input == "relative":
+            pos = (x[:, None, :] - nb_pos) / self.cfg.points.search_radius
+        else:
+            pos = x[:, None, :].expand_as(nb_pos)
+        return nb_feat, nb_col, pos, w, prior
 
     # ------------------------------------------------------------------ queries
-    def query(self, points: np.ndarray | torch.Tensor, with_grad: bool = False) -> SdfQuery:
+    def query(
+        self,
+        points: np.ndarray | torch.Tensor,
+        with_grad: bool = False,
+        neighbors: torch.Tensor | None = None,
+    ) -> SdfQuery:
         """SDF (and gradient) at (N, 3) map-frame points, batched.
 
         Points without a neural point within ``search_radius`` are invalid: their SDF and
         gradient are NaN and ``valid`` is False. Returns numpy for numpy input, torch otherwise.
+        ``neighbors``: (N, k) neural-point indices to use instead of a k-NN search (as
+        returned by ``self.points.knn``; :class:`TrackingSdf` reuses them across iterations).
         """
         is_np = isinstance(points, np.ndarray)
         x_all = _as_float_points(points).to(self.device, torch.float32)
@@ -455,25 +569,27 @@ class ImplicitMap:
         step = self.cfg.points.query_chunk
         for s in range(0, n, step):
             x = x_all[s : s + step]
-            idx, _ = self.points.knn(x)
+            if neighbors is None:
+                idx, _ = self.points.knn(x)
+            else:
+                idx = neighbors[s : s + step]
             ok = idx[:, 0] >= 0
             if not ok.any():
                 continue
             x, idx = x[ok], idx[ok]
             sl = torch.arange(s, s + ok.shape[0], device=self.device)[ok]
             valid[sl] = True
+            nb = self._gather(idx)
             if with_grad:
                 with torch.enable_grad():
                     xg = x.detach().clone().requires_grad_(True)
-                    f, c, ctr = self.points.interpolate(xg, idx)
-                    out = self._decode(xg, f, c, ctr)
+                    out = self.decoder(*self._decoder_inputs(xg, *nb))
                     (g,) = torch.autograd.grad(out.sum(), xg)
                 sdf[sl] = out.detach()
                 grad[sl] = g
             else:
                 with torch.no_grad():
-                    f, c, ctr = self.points.interpolate(x, idx)
-                    sdf[sl] = self._decode(x, f, c, ctr)
+                    sdf[sl] = self.decoder(*self._decoder_inputs(x, *nb))
         if is_np:
             return SdfQuery(
                 sdf.cpu().numpy(), None if grad is None else grad.cpu().numpy(), valid.cpu().numpy()
@@ -488,6 +604,13 @@ class ImplicitMap:
         """(N,) SDF and (N, 3) gradient d sdf / d p at map-frame points (NaN where invalid)."""
         q = self.query(points, with_grad=True)
         return q.sdf, q.grad
+
+    def tracking_sdf(
+        self, reuse_distance: float = 0.02, max_distance: float | None = None
+    ) -> TrackingSdf:
+        """``sdf_and_grad`` for registration that reuses each point's k neighbours across LM
+        iterations and optionally has a tighter validity radius (see :class:`TrackingSdf`)."""
+        return TrackingSdf(self, reuse_distance, max_distance)
 
     def feature_points(self) -> FeaturePoints:
         """Positions (map frame), features, colours and semantic labels of the neural points."""
@@ -533,6 +656,9 @@ class ImplicitMap:
                 "features": p.features.cpu(),
                 "colors": p.colors.cpu(),
                 "labels": p.labels.cpu(),
+                "plane_sum": p.plane_sum.cpu(),
+                "normal_sum": p.normal_sum.cpu(),
+                "plane_count": p.plane_count.cpu(),
             },
             "ewc": self.ewc.state_dict(),
             "replay": self.replay.state_dict(),
@@ -574,7 +700,12 @@ class ImplicitMap:
             m = cls(cfg)
             m.decoder.load_state_dict(state["decoder"])
             pts = state["points"]
-            m.points.set_state(pts["positions"], pts["features"], pts["colors"], pts["labels"])
+            planes = None
+            if "plane_sum" in pts:
+                planes = (pts["plane_sum"], pts["normal_sum"], pts["plane_count"])
+            m.points.set_state(
+                pts["positions"], pts["features"], pts["colors"], pts["labels"], planes
+            )
             m.ewc.load_state_dict(state["ewc"])
             if m.ewc.fisher is not None:
                 m.ewc.fisher = {k: v.to(m.device) for k, v in m.ewc.fisher.items()}
@@ -584,3 +715,82 @@ class ImplicitMap:
         except (KeyError, TypeError, ValueError, RuntimeError) as e:
             raise MapFileError(f"{path}: corrupt simn-sim map ({type(e).__name__}: {e})") from e
         return m
+
+
+class TrackingSdf:
+    """The map's SDF and gradient for registration, with the k-NN search reused.
+
+    LM evaluates the same points at poses a few millimetres apart; the k-NN search is ~70 %
+    of a query's cost (docs/mapping.md). Here the neighbour indices of the last search are
+    reused while the query has the same number of points, no neural point was added, and no
+    point moved more than ``reuse_distance`` (m) since that search; otherwise it searches
+    again. Values are always recomputed (training changes them, not the neighbour sets). With fixed neighbours the SDF is smooth in the pose (no jumps where the neighbour
+    set changes). ``searches`` counts the searches done.
+
+    ``max_distance``: a point further than this *along the surface* (the distance to a
+    neighbour's mean surface point minus its component along that neighbour's normal; the
+    full distance where the map has no normals) from every neighbour is invalid (NaN), instead
+    of ``search_radius``: beyond the observed surface the blended planes are extrapolated, and
+    such residuals pull a frame towards the map's edge (docs/slam.md).
+    """
+
+    def __init__(
+        self,
+        imap: ImplicitMap,
+        reuse_distance: float = 0.02,
+        max_distance: float | None = None,
+    ) -> None:
+        self.map = imap
+        self.reuse_distance = float(reuse_distance)
+        self.max_distance = None if max_distance is None else float(max_distance)
+        self._key: tuple | None = None
+        self._x: torch.Tensor | None = None
+        self._idx: torch.Tensor | None = None
+        self.searches = 0
+
+    def sdf_and_grad(self, points: np.ndarray | torch.Tensor):
+        """(N,) SDF and (N, 3) gradient at map-frame points (NaN where invalid)."""
+        m = self.map
+        x = _as_float_points(points).to(m.device, torch.float32)
+        key = (len(m.points), x.shape[0])  # indices stay valid while no point is added
+        stale = (
+            self._key != key
+            or self._x is None
+            or bool(((x - self._x) ** 2).sum(1).max() > self.reuse_distance**2)
+        )
+        if stale:
+            self._idx, _ = m.points.knn(x)
+            self._x, self._key = x.clone(), key
+            self.searches += 1
+        idx = self._idx
+        if self.max_distance is not None:
+            # coverage: the distance along the surface to the nearest neighbour's plane point
+            # (the offset along its normal is depth noise, not a lack of map)
+            q, nrm = m.points.planes()
+            ic = idx.clamp(min=0)
+            dv = x[:, None, :] - q[ic]
+            dt = dv - (dv * nrm[ic]).sum(-1, keepdim=True) * nrm[ic]
+            d2 = torch.where(idx >= 0, (dt**2).sum(-1), torch.full_like(dt[..., 0], float("inf")))
+            far = d2.min(1).values > self.max_distance**2
+            idx = torch.where(far[:, None], torch.full_like(idx, -1), idx)
+        q = m.query(points, with_grad=True, neighbors=idx)
+        return q.sdf, q.grad
+
+
+def estimate_normals(points: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N, 3) unit normals of camera-frame points by PCA of their ``k`` nearest neighbours,
+    oriented towards the camera (origin); NaN where fewer than 3 points exist."""
+    n = len(points)
+    out = np.full((n, 3), np.nan, np.float32)
+    if n < 3:
+        return out
+    from scipy.spatial import cKDTree
+
+    P = points.astype(np.float64)
+    _, nb = cKDTree(P).query(P, k=min(k, n))
+    Q = P[nb] - P[nb].mean(1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", Q, Q)
+    _, V = np.linalg.eigh(C)
+    nrm = V[:, :, 0]
+    nrm *= np.where((nrm * P).sum(1) > 0, -1.0, 1.0)[:, None]
+    return nrm.astype(np.float32)

@@ -73,6 +73,13 @@ class NeuralPointMap:
         self.features = torch.empty((0, self.cfg.feature_dim), dtype=torch.float32, device=d)
         self.colors = torch.empty((0, 3), dtype=torch.float32, device=d)
         self.labels = torch.empty((0,), dtype=torch.int16, device=d)
+        # surface-plane statistics per neural point (the geometric prior of the decoder):
+        # sums of the observed surface points and unit normals that fell in its voxel, and
+        # how many observations carried a normal
+        self.plane_sum = torch.empty((0, 3), dtype=torch.float32, device=d)
+        self.normal_sum = torch.empty((0, 3), dtype=torch.float32, device=d)
+        self.plane_count = torch.empty((0,), dtype=torch.float32, device=d)
+        self._plane_cache: tuple[torch.Tensor, torch.Tensor] | None = None
         self._off27 = _offsets27(d)
         self._rebuild_index()
 
@@ -109,12 +116,57 @@ class NeuralPointMap:
         points: torch.Tensor,
         colors: torch.Tensor | None = None,
         labels: torch.Tensor | None = None,
+        normals: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Insert (N, 3) map-frame points; one neural point per new voxel (the first point
         falling in it). A known point whose label is 0 (unknown) takes a given non-zero label.
-        Returns the indices of the points created."""
+        ``normals`` (N, 3) unit surface normals in map coordinates (NaN or zero rows: none)
+        update the surface-plane statistics of each point's voxel (:meth:`planes`), new or
+        known. Returns the indices of the points created."""
         points = points.to(self.device, torch.float32)
         n = points.shape[0]
+        new_ids = self._add_points(points, n, colors, labels)
+        if normals is not None and n:
+            self.accumulate_planes(points, normals)
+        return new_ids
+
+    def accumulate_planes(self, points: torch.Tensor, normals: torch.Tensor) -> None:
+        """Add (N, 3) map-frame surface points with unit normals (N, 3) (NaN rows skipped) to
+        the plane statistics of the neural points whose voxels they fall in (points in voxels
+        without a neural point are ignored)."""
+        points = points.to(self.device, torch.float32)
+        normals = normals.to(self.device, torch.float32)
+        ok = torch.isfinite(normals).all(1) & (normals.norm(dim=1) > 0.5)
+        if not ok.any():
+            return
+        ids = self.lookup_voxels(points[ok])
+        hit = ids >= 0
+        ids = ids[hit]
+        self.plane_sum.index_add_(0, ids, points[ok][hit])
+        self.normal_sum.index_add_(0, ids, normals[ok][hit])
+        self.plane_count.index_add_(0, ids, torch.ones_like(ids, dtype=torch.float32))
+        self._plane_cache = None
+
+    def planes(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per neural point the mean observed surface point (N, 3) and the unit mean normal
+        (N, 3) of its voxel; the normal is zero for points without any normal observation (so
+        their plane term vanishes), and the mean point falls back to the point's position."""
+        if self._plane_cache is None:
+            c = self.plane_count.clamp(min=1.0)[:, None]
+            has = (self.plane_count > 0)[:, None]
+            q = torch.where(has, self.plane_sum / c, self.positions)
+            nn_ = self.normal_sum.norm(dim=1, keepdim=True)
+            nrm = torch.where(has & (nn_ > 1e-6), self.normal_sum / nn_.clamp(min=1e-6), 0.0)
+            self._plane_cache = (q.contiguous(), nrm.contiguous())
+        return self._plane_cache
+
+    def _add_points(
+        self,
+        points: torch.Tensor,
+        n: int,
+        colors: torch.Tensor | None,
+        labels: torch.Tensor | None,
+    ) -> torch.Tensor:
         if colors is None:
             colors = torch.full((n, 3), 0.5, device=self.device)
         colors = colors.to(self.device, torch.float32)
@@ -152,6 +204,11 @@ class NeuralPointMap:
             else torch.zeros(m, dtype=torch.int16, device=self.device)
         )
         self.labels = torch.cat([self.labels, lab])
+        z3 = torch.zeros((m, 3), dtype=torch.float32, device=self.device)
+        self.plane_sum = torch.cat([self.plane_sum, z3])
+        self.normal_sum = torch.cat([self.normal_sum, z3])
+        self.plane_count = torch.cat([self.plane_count, z3[:, 0]])
+        self._plane_cache = None
         self._rebuild_index()
         return torch.arange(start, start + m, device=self.device)
 
@@ -161,8 +218,10 @@ class NeuralPointMap:
         features: torch.Tensor,
         colors: torch.Tensor,
         labels: torch.Tensor,
+        planes: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
     ) -> None:
-        """Replace all points (used by map loading)."""
+        """Replace all points (used by map loading); ``planes``: the surface-plane sums
+        (plane_sum (N, 3), normal_sum (N, 3), plane_count (N,)), zeros when None."""
         n = positions.shape[0]
         if not (
             positions.shape == (n, 3)
@@ -175,6 +234,14 @@ class NeuralPointMap:
         self.features = features.to(self.device, torch.float32).contiguous()
         self.colors = colors.to(self.device, torch.float32).contiguous()
         self.labels = labels.to(self.device, torch.int16).contiguous()
+        if planes is None:
+            z = torch.zeros((n, 3), dtype=torch.float32)
+            planes = (z, z.clone(), z[:, 0].clone())
+        ps, ns, pc = (t.to(self.device, torch.float32).contiguous() for t in planes)
+        if ps.shape != (n, 3) or ns.shape != (n, 3) or pc.shape != (n,):
+            raise ValueError("inconsistent surface-plane arrays")
+        self.plane_sum, self.normal_sum, self.plane_count = ps, ns, pc
+        self._plane_cache = None
         self._rebuild_index()
 
     def snapshot(self) -> FeaturePoints:
@@ -187,6 +254,7 @@ class NeuralPointMap:
 
     def nbytes(self) -> int:
         ts = [self.positions, self.features, self.colors, self.labels, self._vkeys, self._vorder]
+        ts += [self.plane_sum, self.normal_sum, self.plane_count]
         ts += [self._bperm, self._bpos, self._bkeys, self._bcount, self._bstart]
         return int(sum(t.numel() * t.element_size() for t in ts))
 
@@ -293,10 +361,33 @@ def idw_interpolate(
     clamped at 1 mm); rows without any valid neighbour give zeros. Returns the interpolated
     features (Q, D), colours (Q, 3) and the weighted neighbour centroid (Q, 3).
     """
-    d = torch.sqrt(((x[:, None, :] - nb_pos) ** 2).sum(-1) + 1e-12).clamp(min=1e-3)
-    w = d.pow(-power) * nb_valid
-    w = w / w.sum(1, keepdim=True).clamp(min=1e-12)
+    w = idw_weights(x, nb_pos, nb_valid, power)
     feat = (w[..., None] * nb_feat).sum(1)
     col = (w[..., None] * nb_col).sum(1)
     centroid = (w[..., None] * nb_pos).sum(1)
     return feat, col, centroid
+
+
+def idw_weights(
+    x: torch.Tensor, nb_pos: torch.Tensor, nb_valid: torch.Tensor, power: float
+) -> torch.Tensor:
+    """Normalised inverse-distance weights (Q, k) of the neighbours (Q, k, 3) of ``x`` (Q, 3):
+    ``1 / max(||p_k - x||, 1 mm)^power`` over the valid ones; rows without any valid
+    neighbour are zero. Differentiable in ``x``."""
+    d = torch.sqrt(((x[:, None, :] - nb_pos) ** 2).sum(-1) + 1e-12).clamp(min=1e-3)
+    w = d.pow(-power) * nb_valid
+    return w / w.sum(1, keepdim=True).clamp(min=1e-12)
+
+
+def gaussian_weights(
+    x: torch.Tensor, nb_pos: torch.Tensor, nb_valid: torch.Tensor, width: float
+) -> torch.Tensor:
+    """Normalised Gaussian weights (Q, k), ``exp(-||p_k - x||^2 / (2 width^2))`` over the
+    valid neighbours (Q, k, 3) of ``x`` (Q, 3); rows without any valid neighbour are zero.
+    Computed relative to the nearest valid neighbour, so far queries do not underflow."""
+    d2 = ((x[:, None, :] - nb_pos) ** 2).sum(-1)
+    d2 = torch.where(nb_valid, d2, torch.full_like(d2, float("inf")))
+    d2min = d2.min(1, keepdim=True).values.detach()
+    d2min = torch.where(torch.isfinite(d2min), d2min, torch.zeros_like(d2min))
+    w = torch.exp(-(d2 - d2min) / (2.0 * width * width)) * nb_valid
+    return w / w.sum(1, keepdim=True).clamp(min=1e-12)

@@ -49,10 +49,16 @@ def sample_rays(
     origin: torch.Tensor,
     cfg: SamplingConfig,
     generator: torch.Generator | None = None,
+    normals: torch.Tensor | None = None,
 ) -> RaySamples:
     """Samples around each surface point; see the module docstring.
 
     points: (N, 3) float32 surface points; origin: (3,) camera centre, same frame.
+    normals: optional (N, 3) unit surface normals (NaN rows: unknown). Where a point has one,
+    the ray samples are labelled with the distance to the point's tangent plane,
+    ``(1 - l) |p - e| |cos theta|`` (theta between ray and normal) instead of the distance
+    along the ray, which over-states the SDF by ``1 / cos theta`` on oblique surfaces, and
+    the surface samples lie on the tangent plane instead of the plane perpendicular to the ray.
     Returns ``N * (n_surface + n_front + n_behind)`` samples, ray by ray: for each point its
     surface, then front, then behind samples.
     """
@@ -69,8 +75,14 @@ def sample_rays(
     r = torch.rand((n, 2 * ns + nf + nb), generator=generator, device=dev, dtype=dt)
     out = torch.empty((n, per, 3), device=dev, dtype=dt)
     lab = torch.zeros((n, per), device=dev, dtype=dt)
+    u = d / dist
+    has_n = None
+    if normals is not None:
+        normals = normals.to(device=dev, dtype=dt)
+        has_n = torch.isfinite(normals).all(1, keepdim=True)
+        nrm = torch.where(has_n, normals, u)  # unknown: the ray (the plain labels)
     if ns > 0:
-        a, b = perpendicular_basis(d / dist)
+        a, b = perpendicular_basis(u if has_n is None else nrm)
         rho = cfg.surface_radius * torch.sqrt(r[:, :ns])
         phi = (2.0 * torch.pi) * r[:, ns : 2 * ns]
         out[:, :ns] = (
@@ -88,6 +100,9 @@ def sample_rays(
             lam[:, nf:] = blo + (bhi - blo) * lam[:, nf:]
         out[:, ns:] = e + lam[..., None] * d[:, None]
         lab[:, ns:] = (1.0 - lam) * dist
+        if has_n is not None:
+            cos = (nrm * u).sum(1, keepdim=True).abs()
+            lab[:, ns:] = lab[:, ns:] * cos
     kinds = [SURFACE] * ns + [FRONT] * nf + [BEHIND] * nb
     kind = torch.tensor(kinds, dtype=torch.int8, device=dev).repeat(n)
     ray = torch.arange(n, device=dev).repeat_interleave(per)
