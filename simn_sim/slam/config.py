@@ -15,12 +15,35 @@ from typing import Any, Literal
 import yaml
 
 from simn_sim.config import Config, ConfigError, require
-from simn_sim.mapping.config import MapperConfig, TrainingConfig
+from simn_sim.mapping.config import (
+    DecoderConfig,
+    MapperConfig,
+    NeuralPointsConfig,
+    TrainingConfig,
+)
 from simn_sim.semantics import FloorClassifierConfig
 from simn_sim.tracking.localframes import FrameTriggerConfig
 from simn_sim.tracking.posegraph import PoseGraphConfig
 from simn_sim.tracking.registration import RegistrationConfig
 from simn_sim.tracking.topomap import LoopClosureConfig
+
+
+def tracking_mapper_config() -> MapperConfig:
+    """The front-end's learned map: :class:`MapperConfig` defaults plus the decoder's geometric
+    prior (each neural point's mean surface plane; the MLP learns a residual on it), Gaussian
+    neighbour weights (5 cm) and BCE sigma 2 cm. Why (docs/mapping.md, "Learned map for
+    tracking"): with the plain decoder the zero level set was 6-9 mm off after the training
+    this CPU affords and tracking on it gave 3.5 cm ATE on the desk; the prior is exact on
+    planes from the first observation; IDW blending followed the nearest neural point's noisy
+    plane (cm-scale steps on D435i depth where registration stalled); with sigma 5 cm the
+    residual moved the surface by 2-3 mm, with 2 cm by < 1 mm."""
+    base = MapperConfig()
+    return dataclasses.replace(
+        base,
+        decoder=dataclasses.replace(base.decoder, geometric_prior=True, prior_normal_gate_deg=60.0),
+        points=dataclasses.replace(base.points, weighting="gaussian", gaussian_width=0.05),
+        training=dataclasses.replace(base.training, sigma=0.02),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +75,23 @@ class SlamConfig(Config):
     #   "points": point-to-plane SDF of the local frame's surface store (surface_voxel grid,
     #   first observation per voxel kept, normals from the organised depth image).
     track_sdf: Literal["implicit", "points"] = "points"
+    # implicit tracking: the registration's gradient-norm validity floor (the registration
+    # config's 0.5 made points flip between valid and invalid where the blended planes of
+    # noisy normals meet, so LM's cost jumped and it stopped early), and the distance (m) a
+    # point may move before its k neural-point neighbours are searched again (0: every
+    # LM iteration; the search is ~70 % of a query)
+    implicit_grad_norm_min: float = 0.3
+    implicit_reuse_neighbors: float = 0.02
+    # implicit tracking: a point further than this along the surface from its neighbours'
+    # plane points has no SDF (the map's own validity is its 15 cm search radius, over which the
+    # planes at the map's edge are extrapolated and pull the frame; the point store uses 3 cm).
+    # Measured (docs/slam.md): 15 cm radius: noise-free corridor 4.4 cm; 4 cm along the surface:
+    # desk 0.24 / 2.56 cm (D435i); 3 cm to the nearest neural point: corridor 0.50 / 0.44 cm but
+    # the desk diverged (36 / 55 cm)
+    implicit_max_dist: float = 0.04
+    # normals of the learned map's geometric prior: depth box-blurred over (2 k + 1)^2
+    # pixels (a plane's normal error times the 2-5 cm lever arm to a query is SDF error)
+    implicit_normal_smooth_px: int = 1
     surface_voxel: float = 0.02
     surface_keep: Literal["first", "mean"] = "mean"  # per-voxel model point: first or average
     normal_smooth_px: int = 1  # normals from depth box-blurred over (2 k + 1)^2 pixels; 0: raw
@@ -144,6 +184,15 @@ class SlamConfig(Config):
             "'implicit' tracking needs map_kind 'implicit'",
         )
         require(self.sdf_rebuild_growth >= 0, n, "sdf_rebuild_growth", "must be >= 0")
+        require(
+            0 < self.implicit_grad_norm_min < 1,
+            n,
+            "implicit_grad_norm_min",
+            "must be in (0, 1)",
+        )
+        require(self.implicit_reuse_neighbors >= 0, n, "implicit_reuse_neighbors", ">= 0")
+        require(self.implicit_max_dist > 0, n, "implicit_max_dist", "must be > 0")
+        require(self.implicit_normal_smooth_px >= 0, n, "implicit_normal_smooth_px", ">= 0")
         for f in (
             "track_voxel",
             "obstacle_voxel",
@@ -202,6 +251,18 @@ class SlamConfig(Config):
         require(self.torch_threads >= 0, n, "torch_threads", "must be >= 0 (0: leave as is)")
 
     @classmethod
+    def for_learned_tracking(cls, **changes: Any) -> SlamConfig:
+        """Tracking against the local frame's learned map (``track_sdf="implicit"``) with
+        :func:`tracking_mapper_config` (geometric prior + learned residual); ``changes`` as in
+        :meth:`for_agent`. Not the default: it misses the ATE targets on noisy depth and the
+        corridor (docs/slam.md, "Learned map for tracking")."""
+        d = cls().to_dict()
+        d.update(track_sdf="implicit", mapper=tracking_mapper_config().to_dict())
+        for k, v in changes.items():
+            d[k] = {**d[k], **v} if isinstance(v, dict) and isinstance(d.get(k), dict) else v
+        return cls.from_dict(d)
+
+    @classmethod
     def for_agent(cls, **changes: Any) -> SlamConfig:
         """The cheap preset for the closed-loop agent (10 Hz, 320x240 frames): fewer
         registration points and shorter training bursts."""
@@ -249,4 +310,11 @@ def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
     return SlamConfig.from_dict(data)
 
 
-__all__ = ["SlamConfig", "TrainingConfig", "load_slam_config"]
+__all__ = [
+    "DecoderConfig",
+    "NeuralPointsConfig",
+    "SlamConfig",
+    "TrainingConfig",
+    "load_slam_config",
+    "tracking_mapper_config",
+]

@@ -240,10 +240,16 @@ class SimnSlam:
         self._ray_x = ((u - intrinsics.cx) / intrinsics.fx).astype(np.float32)
         self._ray_y = ((v - intrinsics.cy) / intrinsics.fy).astype(np.float32)
         self.rng = np.random.default_rng(self.cfg.seed)
+        # the learned map's geometric prior takes its own (smoother) normals
+        self._map_prior = (
+            self.cfg.map_kind == "implicit" and self.cfg.mapper.decoder.geometric_prior
+        )
         self._track_reg = self.cfg.registration.replace(
             degeneracy_ratio=self.cfg.track_degeneracy_ratio,
             min_valid_fraction=self.cfg.track_min_valid_fraction,
         )
+        if self.cfg.track_sdf == "implicit":
+            self._track_reg = self._track_reg.replace(grad_norm_min=self.cfg.implicit_grad_norm_min)
         c = self.cfg
         sr, st = np.radians(c.prior_sigma_rot_deg), c.prior_sigma_trans
         self._cv_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
@@ -280,18 +286,13 @@ class SimnSlam:
         ok = np.isfinite(z) & (z >= self.cfg.min_depth) & (z <= self.cfg.max_depth)
         zz = np.where(ok, z, 0.0).astype(np.float32)
         P = np.stack([self._ray_x * zz, self._ray_y * zz, zz], axis=2)
-        if self.cfg.normal_smooth_px > 0:
-            # normals from a normalised-convolution box blur of the depth (noisy stereo depth
-            # gives useless central-difference normals); points keep the raw depth
-            k = 2 * self.cfg.normal_smooth_px + 1
-            wsum = cv2.blur(ok.astype(np.float32), (k, k))
-            zs = cv2.blur(zz, (k, k)) / np.maximum(wsum, 1e-6)
-            Ps = np.stack([self._ray_x * zs, self._ray_y * zs, zs], axis=2)
-            N = normals_from_organized(np.where(ok[..., None], Ps, np.nan))
-        else:
-            N = normals_from_organized(np.where(ok[..., None], P, np.nan))
+        N = self._normals(P, zz, ok, self.cfg.normal_smooth_px)
         pts = P[ok]
         nrm = N[ok].astype(np.float32)
+        map_nrm = nrm
+        k_map = self.cfg.implicit_normal_smooth_px
+        if self._map_prior and k_map != self.cfg.normal_smooth_px:
+            map_nrm = self._normals(P, zz, ok, k_map)[ok].astype(np.float32)
         if rgb is not None:
             rgb = np.asarray(rgb)
             if rgb.shape != (h, w, 3):
@@ -303,7 +304,27 @@ class SimnSlam:
             col = np.full((len(pts), 3), 0.5, np.float32)
         rows, cols = np.nonzero(ok)
         pix = np.stack([rows * s, cols * s], axis=1)
-        return {"points": pts, "normals": nrm, "colors": col, "depth": zz, "valid": ok, "pix": pix}
+        return {
+            "points": pts,
+            "normals": nrm,
+            "map_normals": map_nrm,
+            "colors": col,
+            "depth": zz,
+            "valid": ok,
+            "pix": pix,
+        }
+
+    def _normals(self, P: np.ndarray, zz: np.ndarray, ok: np.ndarray, k_px: int) -> np.ndarray:
+        """(H, W, 3) normals of the organised points; with ``k_px`` > 0 from a normalised-
+        convolution box blur of the depth over (2 k_px + 1)^2 pixels (noisy stereo depth gives
+        useless central-difference normals); the points themselves keep the raw depth."""
+        if k_px <= 0:
+            return normals_from_organized(np.where(ok[..., None], P, np.nan))
+        k = 2 * k_px + 1
+        wsum = cv2.blur(ok.astype(np.float32), (k, k))
+        zs = cv2.blur(zz, (k, k)) / np.maximum(wsum, 1e-6)
+        Ps = np.stack([self._ray_x * zs, self._ray_y * zs, zs], axis=2)
+        return normals_from_organized(np.where(ok[..., None], Ps, np.nan))
 
     def _point_weights(self, pts: np.ndarray) -> np.ndarray | None:
         """Registration prior weights: the inverse depth-noise variance of each point relative
@@ -390,7 +411,11 @@ class SimnSlam:
         """``sdf_and_grad`` of frame ``fid`` for registration (per ``track_sdf``), or None."""
         st = self._states[fid]
         if self.cfg.track_sdf == "implicit":
-            return st.frame.map.sdf_and_grad if st.n_trained > 0 else None
+            if st.n_trained == 0:
+                return None
+            c = self.cfg
+            dmax = c.implicit_max_dist if growth is None else None  # revisits: the map's own
+            return st.frame.map.tracking_sdf(c.implicit_reuse_neighbors, dmax).sdf_and_grad
         g = self.cfg.sdf_rebuild_growth if growth is None else growth
         sdf = st.surface.point_sdf(g)
         if sdf is None:
@@ -794,7 +819,14 @@ class SimnSlam:
         else:
             train_iters = 0
         try:
-            m.integrate_frame(pts, T_anchor_cam, obs["colors"], labels.astype(np.int16), False)
+            m.integrate_frame(
+                pts,
+                T_anchor_cam,
+                obs["colors"],
+                labels.astype(np.int16),
+                False,
+                normals=obs["map_normals"],
+            )
             if train_iters:
                 m.train(train_iters)
                 st.n_trained += 1
