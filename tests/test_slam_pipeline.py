@@ -135,6 +135,21 @@ def test_learned_map_tracking_preset_meets_the_desk_target(desk):
     assert fmap.n_trainings > 0  # the residual was trained, not only the prior
 
 
+def test_yaml_preset_selects_learned_tracking(tmp_path):
+    from simn_sim.config import ConfigError
+    from simn_sim.slam.config import load_slam_config
+
+    f = tmp_path / "slam.yaml"
+    f.write_text("preset: learned_tracking\ntrack_max_depth: 3.0\nmapper: {seed: 5}\n")
+    cfg = load_slam_config(f)
+    assert cfg.track_sdf == "implicit" and cfg.track_max_depth == 3.0
+    assert cfg.mapper.decoder.geometric_prior and cfg.mapper.seed == 5
+    assert load_slam_config(None).track_sdf == "points"  # the default is unchanged
+    f.write_text("preset: nope\n")
+    with pytest.raises(ConfigError, match="preset"):
+        load_slam_config(f)
+
+
 def _synthetic_view(box: bool):
     """160x120 depth: a wall 3 m ahead, optionally a box face 1.5 m ahead in the centre."""
     depth = np.full((120, 160), 3.0, np.float32)

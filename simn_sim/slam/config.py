@@ -291,7 +291,11 @@ class SlamConfig(Config):
 
 
 def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
-    """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults."""
+    """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults.
+
+    A top-level ``preset: learned_tracking`` (:meth:`SlamConfig.for_learned_tracking`) or
+    ``preset: agent`` (:meth:`SlamConfig.for_agent`) starts from that preset; the other keys
+    then change it (a nested mapping only the keys it names)."""
     data: dict[str, Any] = {}
     if path is not None:
         p = Path(path)
@@ -307,7 +311,15 @@ def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
             raise ConfigError(f"{p}: expected a mapping at the top level")
         data = loaded
     data.update(overrides)
-    return SlamConfig.from_dict(data)
+    preset = data.pop("preset", None)
+    if preset is None:
+        return SlamConfig.from_dict(data)
+    presets = {"learned_tracking": SlamConfig.for_learned_tracking, "agent": SlamConfig.for_agent}
+    if preset not in presets:
+        raise ConfigError(
+            f"SlamConfig.preset: unknown preset {preset!r} (one of {sorted(presets)})"
+        )
+    return presets[preset](**data)
 
 
 __all__ = [
