@@ -4,7 +4,7 @@ camera that looks along +x, and depth images of planes at known distances."""
 import numpy as np
 import pytest
 
-from simn_sim.agents.shadow import OcclusionShadow
+from simn_sim.agents.shadow import OcclusionShadow, below_top_contour
 from simn_sim.geometry.camera import Intrinsics
 
 # 200 x 200 px, 127 deg field of view: every sample near the plate is in view
@@ -117,3 +117,27 @@ def test_bad_input_is_named():
         sh.observe(_plate(), np.eye(3), np.zeros((200, 200)), INTR)
     with pytest.raises(ValueError, match="xy"):
         sh.traverse(np.array([np.inf, 0.0]), 0.25)
+
+
+def test_top_contour_marks_objects_with_a_visible_top_not_walls_or_slanted_edges():
+    d = np.full((60, 80), 6.0)  # far background
+    d[30:, 20:40] = 2.0  # a box whose top edge (row 30) is in view
+    d[:, 60:] = 1.5  # a wall reaching the top of the image
+    d[25:, 50:56] = 3.0  # a post whose top is in view, narrower than the window
+    t = below_top_contour(d, 0.15, half_width=3)
+    assert t[30:, 23:37].all()  # the box below its top, away from its sides
+    assert not t[:, 60:].any()  # the wall: no top in view
+    assert not t[:25].any()  # the background above: nothing nearer above it
+    assert t[25:, 50:56].all()  # the row above the post's top is background throughout
+    # a slanted edge (a door jamb seen with the camera pitched): each row's edge 1 px further
+    s = np.full((40, 80), 6.0)
+    for v in range(40):
+        s[v, : 30 + v] = 1.0  # the wall occupies the left, its edge moves right going down
+    assert not below_top_contour(s, 0.15, half_width=3)[:, :].any()
+    # an object cut by the image's side cannot show a horizontal top there
+    e = np.full((40, 80), 6.0)
+    e[20:, :10] = 2.0
+    te = below_top_contour(e, 0.15, half_width=3)
+    assert not te[:, :3].any() and te[20:, 3:7].all()
+    with pytest.raises(ValueError, match="jump"):
+        below_top_contour(d, 0.0)

@@ -75,8 +75,9 @@ def below_top_contour(depth: np.ndarray, jump: float, half_width: int = 3) -> np
         diff = dd[1:] - dd[:-1]  # this row minus the row above; inf - inf = nan: no break
         brk = np.zeros(d.shape, bool)
         brk[1:] = np.abs(diff) > jump
-        # nearest of the pixels above within +-half_width columns (edges: repeat the border)
-        pad = np.pad(dd[:-1], ((0, 0), (half_width, half_width)), mode="edge")
+        # nearest of the pixels above within +-half_width columns
+        # beyond the image's sides counts as near: a contour there cannot be checked
+        pad = np.pad(dd[:-1], ((0, 0), (half_width, half_width)), constant_values=0.0)
         win = np.lib.stride_tricks.sliding_window_view(pad, 2 * half_width + 1, axis=1)
         above_min = win.min(axis=-1)
         top = np.zeros(d.shape, bool)

@@ -96,11 +96,10 @@ class SimnAgentConfig(Config):
     scan_rate: float = 1.2  # rad/s while scanning
     rebuild_every: int = 20  # slam: rebuild the collision model from the local frames' stores
     # occlusion shadows (``simn_sim.agents.shadow``, pose_source "slam"): the space up to this
-    # far (m) behind each seen obstacle point, below its continued camera ray, counts as
-    # occupied for planning until a depth image sees through it (a chair seen from behind
-    # hides its seat behind its back); cleared cells leave the collision model at the next
-    # rebuild (every rebuild_every steps, and before a replan for a missing or blocked path);
-    # 0: off
+    # far (m) behind each seen obstacle point, below its continued camera ray, may be occupied
+    # (a chair seen from behind hides its seat behind its back) until a depth image sees
+    # through it. Shadows are a soft constraint: plans are pushed away from them like from
+    # obstacles (path_clearance) where there is room, but they never block a plan; 0: off
     shadow_depth: float = 0.3
     # only obstacle points within this horizontal range of the camera cast shadows: what is
     # hidden near the robot is what it can hit next, while a shadow cast from afar through a
@@ -262,7 +261,9 @@ class SimnAgent:
             if self.cfg.shadow_depth > 0 and self.cfg.pose_source == "slam"
             else None
         )
-        self._shadow_dirty = False  # shadow cells were cleared since the last rebuild
+        self._shadow_dirty = False  # shadow cells were cleared since shadow_map was built
+        # the shadow cells as an obstacle model of their own (for push_from_obstacles)
+        self.shadow_map = CollisionChecker(self.cfg.collision) if self.shadow is not None else None
         self._best_goal_dist = math.inf  # the robot's closest approach to the goal so far
         self._route_kind = "goal_unexplored"
         if self.cfg.pose_source == "slam":
@@ -322,7 +323,7 @@ class SimnAgent:
             else:
                 P = fr.obstacle_points_world
                 self._update_maps(P, np.full(len(P), OBSTACLE, np.int8))
-                self._add_shadow(new_shadow)
+            self._add_shadow(new_shadow)
             return T_wc
         d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
         dm = np.where(d <= self.cfg.obstacle_max_depth, d, 0.0)
@@ -376,8 +377,7 @@ class SimnAgent:
             self._carved_since_rebuild = False
 
     def _rebuild_maps(self, obstacle_points: np.ndarray) -> None:
-        """Rebuild both collision models from ``obstacle_points`` plus the bump points (and the
-        planning model's shadow cells)."""
+        """Rebuild both collision models from ``obstacle_points`` plus the bump points."""
         self.checker.reset()
         self.safety.reset()
         pts = (
@@ -386,14 +386,14 @@ class SimnAgent:
             else obstacle_points
         )
         self._update_maps(pts, np.full(len(pts), OBSTACLE, np.int8))
-        if self.shadow is not None:
-            self._add_shadow(self.shadow.shadow)
-            self._shadow_dirty = False
 
-    def _refresh_shadow(self) -> None:
-        """Before an event replan: drop the shadow cells seen free since the last rebuild."""
-        if self._shadow_dirty and self.slam is not None:
-            self._rebuild_maps(self.slam.obstacle_points_world())
+    def _shadow_model(self) -> CollisionChecker | None:
+        """The shadow cells' obstacle model, rebuilt first if cells were cleared since."""
+        if self.shadow_map is not None and self._shadow_dirty:
+            self.shadow_map.reset()
+            self._shadow_dirty = False
+            self._add_shadow(self.shadow.shadow)
+        return self.shadow_map
 
     def _observe_shadow(
         self,
@@ -424,13 +424,13 @@ class SimnAgent:
         return new
 
     def _add_shadow(self, keys: np.ndarray) -> None:
-        """Shadow cells go into the planning model only: the safety model (and with it the
-        recovery behaviour) keeps to what was seen."""
-        if self.shadow is None or not len(keys):
+        """Shadow cells go into their own model (``shadow_map``), never into the planning or
+        the safety model: they steer plans, they do not block them."""
+        if self.shadow_map is None or not len(keys):
             return
         xy = self.shadow.centres(keys)
         z = np.full((len(xy), 1), 0.5 * (self.cfg.collision.z_min + self.cfg.collision.z_max))
-        self.checker.update(np.hstack([xy, z]), np.full(len(xy), OBSTACLE, np.int8))
+        self.shadow_map.update(np.hstack([xy, z]), np.full(len(xy), OBSTACLE, np.int8))
 
     def _update_maps(self, points: np.ndarray, labels: np.ndarray) -> None:
         if len(points):
@@ -520,7 +520,9 @@ class SimnAgent:
                 path = grid_shortest_path(self.checker, start, job["goal"], self.rng)
                 self.fallback_plans += int(path is not None)
             if path is not None and self.cfg.path_clearance > 0:
-                path = push_from_obstacles(path, self.checker, self.cfg.path_clearance)
+                path = push_from_obstacles(
+                    path, self.checker, self.cfg.path_clearance, also_from=self._shadow_model()
+                )
             if path is not None and start is not job["xy"]:
                 path = np.vstack([job["xy"], path])
             if path is not None and scheduled and not self.checker.path_free(path[1:]):
@@ -669,7 +671,6 @@ class SimnAgent:
             return np.array([0.0, min(self.cfg.scan_rate, self.follower_cfg.w_max)], np.float32)
         self.since_plan += 1
         if self.path is None:
-            self._refresh_shadow()
             self._plan(xy)
         elif self._job is not None or self.since_plan >= self.cfg.replan_every:
             if self.cfg.plan_slice > 0:
@@ -680,7 +681,6 @@ class SimnAgent:
             return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
         cmd = self.follower.step(pose)
         if cmd.status in ("blocked", "stale"):
-            self._refresh_shadow()
             self._plan(xy)
             if self.path is None:
                 return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)

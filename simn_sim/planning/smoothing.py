@@ -100,6 +100,7 @@ def push_from_obstacles(
     spacing: float = 0.1,
     step: float = 0.03,
     iterations: int = 15,
+    also_from: CollisionChecker | None = None,
 ) -> np.ndarray:
     """Move the path's interior vertices away from the nearest obstacle until their clearance
     reaches ``target_clearance`` (m, distance to the nearest obstacle cell) or they stop being
@@ -108,7 +109,11 @@ def push_from_obstacles(
     Each iteration moves a vertex by at most ``step`` along the direction from its nearest
     obstacle; a move is kept only where the two segments at the vertex stay free, so the result
     is free wherever the input was (segments that were not free are left to the caller). A narrow passage keeps the path at its centre line (the
-    push from both sides balances), so nothing becomes impassable."""
+    push from both sides balances), so nothing becomes impassable.
+
+    ``also_from``: a second obstacle model the vertices are pushed away from as well (the
+    nearer of the two obstacles counts), while freeness is judged by ``checker`` alone: space
+    that may be occupied (occlusion shadows) is avoided where there is room, never required."""
     p = densify(path, spacing)
     if len(p) < 3 or target_clearance <= 0:
         return p
@@ -116,10 +121,16 @@ def push_from_obstacles(
     for _ in range(iterations):
         q = p[1:-1]
         c = checker.clearance(q)
+        o = checker.nearest_obstacle(q)
+        if also_from is not None:
+            c2 = also_from.clearance(q)
+            nearer = c2 < c
+            if nearer.any():
+                c = np.where(nearer, c2, c)
+                o[nearer] = also_from.nearest_obstacle(q[nearer])
         need = c < target_clearance
         if not need.any():
             break
-        o = checker.nearest_obstacle(q)
         d = q - o
         n = np.hypot(d[:, 0], d[:, 1])
         ok = need & np.isfinite(n) & (n > 1e-9)
