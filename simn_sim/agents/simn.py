@@ -326,8 +326,7 @@ class SimnAgent:
             self._add_shadow(new_shadow)
             return T_wc
         d, intr = strided(obs["depth"], self.intr, self.cfg.obstacle_stride)
-        dm = np.where(d <= self.cfg.obstacle_max_depth, d, 0.0)
-        P = backproject(dm, intr).reshape(-1, 3)
+        P = backproject(np.where(d <= self.cfg.obstacle_max_depth, d, 0.0), intr).reshape(-1, 3)
         P = P[P[:, 2] > 0]
         if len(P):
             Pw = transform_points(T_wc, P.astype(np.float64))
@@ -413,7 +412,7 @@ class SimnAgent:
         band &= np.hypot(*(obstacle_points[:, :2] - T_wc[:2, 3]).T) <= self.cfg.shadow_range
         if pixels is None:
             raise ValueError("occlusion shadows need the pixel of each obstacle point")
-        if len(pixels):
+        if band.any():  # the top contours only matter for points that may cast
             hw = max(1, round(3 * depth.shape[1] / 320))
             topped = below_top_contour(depth, self.cfg.shadow_edge_jump, hw)
             band &= topped[pixels[:, 0], pixels[:, 1]]
@@ -653,8 +652,7 @@ class SimnAgent:
         xy = pose[:2]
         self._best_goal_dist = min(self._best_goal_dist, float(np.hypot(*(xy - self.goal))))
         self._plan_ms = None
-        # (the safety model: the planning model's occlusion shadows are no contact)
-        if float(self.safety.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
+        if float(self.checker.clearance(xy[None])[0]) < self.cfg.collision.robot_radius + 0.01:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
             self.path = None
             return self._escape(pose)

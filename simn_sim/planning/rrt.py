@@ -172,14 +172,8 @@ class RRTStar:
             near = [near[m] for m in sel]
             d = [d[m] for m in sel]
         c = [costs[j] + dj for j, dj in zip(near, d, strict=True)]
-        # choose-parent, lazily: check edges cheapest first and stop at the first free one
         seg_free = self.checker.segment_free_xy
-        k = -1
-        for m in sorted(range(len(c)), key=c.__getitem__):
-            j = near[m]
-            if seg_free(xs[j], ys[j], xn, yn):
-                k = m
-                break
+        k = self._first_free_parent(sorted(range(len(c)), key=c.__getitem__), near, xn, yn)
         if k < 0:
             return -1
         i_new = tree.add(x_new, near[k], d[k])
@@ -190,6 +184,17 @@ class RRTStar:
             if m != k and c_new + d[m] < costs[j] - 1e-12 and seg_free(xn, yn, xs[j], ys[j]):
                 tree.rewire(j, i_new, d[m])
         return i_new
+
+    def _first_free_parent(self, order: list[int], near: list[int], xn: float, yn: float) -> int:
+        """Choose-parent, lazily: the first candidate ``m`` in ``order`` (cheapest cost-through
+        first) whose edge from node ``near[m]`` to (xn, yn) is free; -1 if none is."""
+        xs, ys = self.tree.xs, self.tree.ys
+        seg_free = self.checker.segment_free_xy
+        for m in order:
+            j = near[m]
+            if seg_free(xs[j], ys[j], xn, yn):
+                return m
+        return -1
 
     def _insert_dense(
         self, x_new: np.ndarray, near: np.ndarray, d: np.ndarray, extra: int, d_extra: float
@@ -215,12 +220,7 @@ class RRTStar:
         c = tree.cost[near] + d
         seg_free = self.checker.segment_free_xy
         near_l, d_l = near.tolist(), d.tolist()
-        k = -1
-        for m in np.argsort(c, kind="stable").tolist():
-            j = near_l[m]
-            if seg_free(xs[j], ys[j], xn, yn):
-                k = m
-                break
+        k = self._first_free_parent(np.argsort(c, kind="stable").tolist(), near_l, xn, yn)
         if k < 0:
             return -1
         i_new = tree.add(x_new, near_l[k], d_l[k])
