@@ -179,3 +179,42 @@ def test_shadows_are_cast_only_within_shadow_range():
 def test_shadow_config_is_validated(env):
     with pytest.raises(ConfigError, match="shadow_depth"):
         make_agent("simn", env.unwrapped, {"shadow_depth": 0.01})
+
+
+def _room_with_low_box_ahead():
+    """The room of ``_room_with_box_behind_start`` without the cube; 0.55-1.0 m ahead of the
+    start a 0.34 m box (the nav-ref-006 case): the camera (0.22 m ahead of the base centre, at
+    1.0 m, lower border 45.25 deg down) sees its top only from x = 0.874 m in the start frame;
+    the nearer part is below the view."""
+    from simn_sim.env.layout import Box
+
+    lay = _room_with_box_behind_start()
+    lay.boxes = [b for b in lay.boxes if b.name != "cube"]
+    lay.boxes.append(
+        Box("low", "box", 2, (6.775, 4.0, 0.17), (0.225, 0.3, 0.17), 0.0, (0.6, 0.3, 0.2, 1))
+    )
+    return lay
+
+
+@pytest.mark.parametrize("blind", [0.0, 0.6])
+def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
+    from test_env import _env_with_layout
+
+    e = _env_with_layout(_room_with_low_box_ahead(), width=320, height=240)
+    ep = {"episode_id": "low", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
+    obs, info = e.reset(options={"episode": ep})
+    agent = make_agent("simn", e, {"blind_shadow_depth": blind, "initial_scan_deg": 0.0})
+    agent.reset(obs, info)  # one view
+    # start frame: the box x in [0.55, 1.0], |y| <= 0.3; only x >= 0.874 is in view
+    assert float(agent.checker.clearance(np.array([[0.95, 0.0]]))[0]) < 0.06
+    assert float(agent.checker.clearance(np.array([[0.6, 0.0]]))[0]) > 0.2  # unseen part
+    gx, gy = np.meshgrid(np.arange(0.575, 0.85, 0.05), np.arange(-0.125, 0.13, 0.05))
+    hidden = np.stack([gx.ravel(), gy.ravel()], 1)  # the hidden part, in the seen columns
+    in_shadow = agent.shadow_map.clearance(hidden) < 1e-6
+    if blind:
+        assert in_shadow.mean() > 0.9
+        # the robot's own footprint is known free: no shadow there
+        assert float(agent.shadow_map.clearance(np.array([[0.0, 0.0]]))[0]) > 0.2
+    else:
+        assert not in_shadow.any()
+    e.close()

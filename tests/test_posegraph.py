@@ -182,6 +182,10 @@ def _square_cameras(side: float = 4.0, step: float = 0.5, extra: int = 1) -> lis
 
 @pytest.fixture(scope="module")
 def drifted_topomap():
+    return _make_drifted_topomap()
+
+
+def _make_drifted_topomap():
     """32 frames around a square + 1 revisiting frame 0; each frame's map is the analytic scene
     seen from its true pose (valid near its own points only); anchors chained from odometry
     with a heading bias of 0.25 deg per frame."""
@@ -305,3 +309,43 @@ def test_topomap_drops_rejected_loops_and_refreshes() -> None:
     assert not np.array_equal(cells_before, topo.descriptor(20).cells)
     x, y = topo.anchor(20)[:2, 3]
     assert 20 in topo.frames_containing(np.array([x, y]), margin=0.5)
+
+
+def test_close_loop_steps_yields_per_registration_and_matches_close_loop() -> None:
+    """The generator form (one registration per step, as the agent runs it over control
+    steps) ends with the same revisit, loop arc and optimised anchors as one call."""
+    import copy
+
+    from simn_sim.tracking.topomap import close_loop_steps
+
+    topo0, gt, obs, est = _make_drifted_topomap()  # fresh: other tests close its loop
+    cur = len(gt) - 1
+    cfg = LoopClosureConfig(exclude_recent=4)
+    ta, tb = copy.deepcopy(topo0), copy.deepcopy(topo0)
+    calls = []
+    cb_b = registration_callback(tb)
+
+    def counting(fid, pts, T):
+        calls.append(fid)
+        return cb_b(fid, pts, T)
+
+    # wrong candidates first: each is tried at every yaw of the search before the right one
+    ids = [8, 16, 0]
+    ra = close_loop(ta, cur, obs[cur], est[cur], registration_callback(ta), cfg, candidate_ids=ids)
+    steps = close_loop_steps(tb, cur, obs[cur], est[cur], counting, cfg, candidate_ids=ids)
+    n_yields = 0
+    while True:
+        n_before = len(tb.arcs("loop"))
+        try:
+            next(steps)
+        except StopIteration as done:
+            rb = done.value
+            break
+        n_yields += 1
+        assert len(calls) == n_yields  # one registration per step
+        assert len(tb.arcs("loop")) == n_before  # the map changes only at the end
+    assert n_yields >= 2 * len(cfg.yaw_search_deg) + 1
+    assert ra.accepted == rb.accepted == 0, [a.reason for a in ra.attempts]
+    assert [a.reason for a in ra.attempts] == [a.reason for a in rb.attempts]
+    assert np.allclose(ra.T_i_j, rb.T_i_j, atol=1e-9)
+    assert all(np.allclose(ta.anchor(k), tb.anchor(k), atol=1e-9) for k in ta.frame_ids)

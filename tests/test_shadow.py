@@ -4,7 +4,7 @@ camera that looks along +x, and depth images of planes at known distances."""
 import numpy as np
 import pytest
 
-from simn_sim.agents.shadow import OcclusionShadow, below_top_contour
+from simn_sim.agents.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 from simn_sim.geometry.camera import Intrinsics
 
 # 200 x 200 px, 127 deg field of view: every sample near the plate is in view
@@ -141,3 +141,113 @@ def test_top_contour_marks_objects_with_a_visible_top_not_walls_or_slanted_edges
     assert not te[:, :3].any() and te[20:, 3:7].all()
     with pytest.raises(ValueError, match="jump"):
         below_top_contour(d, 0.0)
+
+
+# ---------------------------------------------------------------- blind-zone shadows
+# the robot's camera: 320 x 240, fovy 42.5 deg, at 1.0 m pitched down 24 deg, looking along +x;
+# its lower image border descends at 45.25 deg, so a surface at height h is out of view nearer
+# than (1 - h) / tan(45.25 deg) (0.654 m for a 0.34 m box top)
+_FY = 120 / np.tan(np.radians(21.25))
+D435_INTR = Intrinsics(320, 240, _FY, _FY, 159.5, 119.5)
+LOW_RAY = np.radians(24 + 21.25)
+
+
+def _pitched_cam() -> np.ndarray:
+    T = _cam_looking_along_x()
+    a = np.radians(-24.0)  # pitch down: about the camera x axis (its y points down)
+    Rp = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    T[:3, :3] = T[:3, :3] @ Rp
+    return T
+
+
+def _raycast(T: np.ndarray, intr: Intrinsics, boxes: list) -> np.ndarray:
+    """Exact depth (along the optical axis) of the floor z = 0 and axis-aligned boxes
+    ((lo xyz), (hi xyz)) seen by camera T (slab intersection)."""
+    v, u = np.mgrid[0 : intr.height, 0 : intr.width].astype(np.float64)
+    rays_c = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)], -1)
+    d = rays_c.reshape(-1, 3) @ T[:3, :3].T  # world direction per unit optical depth
+    o = T[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_best = np.where(d[:, 2] < 0, -o[2] / d[:, 2], np.inf)  # floor
+        for lo, hi in boxes:
+            t1 = (np.asarray(lo) - o) / d
+            t2 = (np.asarray(hi) - o) / d
+            tn = np.nanmax(np.minimum(t1, t2), axis=1)
+            tf = np.nanmin(np.maximum(t1, t2), axis=1)
+            hit = (tn <= tf) & (tn > 0)
+            t_best = np.where(hit & (tn < t_best), tn, t_best)
+    return np.where(np.isfinite(t_best), t_best, 0.0).reshape(intr.height, intr.width)
+
+
+def _bottom_points(T, intr, depth, rows=5):
+    """Back-projected points of the bottom ``rows`` rows above the floor (obstacle points)."""
+    v, u = np.mgrid[intr.height - rows : intr.height, 0 : intr.width]
+    z = depth[v, u]
+    P = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], -1).reshape(-1, 3)
+    Pw = P @ T[:3, :3].T + T[:3, 3]
+    keep = (z.ravel() > 0) & (Pw[:, 2] > 0.05)
+    return Pw[keep], np.stack([v.ravel(), u.ravel()], 1)[keep]
+
+
+def test_a_low_box_top_at_the_lower_border_shadows_its_hidden_part_towards_the_camera():
+    T = _pitched_cam()
+    near_edge = (1.0 - 0.34) / np.tan(LOW_RAY)  # 0.654 m: the top is out of view nearer
+    box = ((0.4, -0.3, 0.0), (1.0, 0.3, 0.34))  # its near 0.25 m is hidden under the view
+    depth = _raycast(T, D435_INTR, [box])
+    P, pix = _bottom_points(T, D435_INTR, depth)
+    assert len(P) and np.allclose(P[:, 2], 0.34, atol=1e-6)  # the top, at the lower border
+    assert P[:, 0].min() == pytest.approx(near_edge, abs=0.01)
+    cont = may_continue_below_view(depth, D435_INTR, T, rows=5, step=2, jump=0.15)
+    assert cont[pix[:, 0], pix[:, 1]].all()
+    sh = OcclusionShadow(0.05, 0.3)
+    new = sh.cast_below_view(P, T, D435_INTR, depth=0.6)
+    c = sh.centres()
+    assert len(new) == len(sh) > 0
+    # towards the camera only: between the camera and the seen edge, up to 0.6 m before it
+    assert np.all(c[:, 0] < near_edge + 0.05) and np.all(c[:, 0] > near_edge - 0.6 - 0.05)
+    # the hidden part of the box top (x in [0.4, 0.654), |y| <= 0.3), as far as it lies in
+    # the image columns that saw the top (the shadow continues each column below the view:
+    # along the ray towards the point under the camera), is all shadow
+    gx, gy = np.meshgrid(np.arange(0.425, near_edge - 0.05, 0.05), np.arange(-0.275, 0.28, 0.05))
+    g = np.stack([gx.ravel(), gy.ravel()], 1)
+    bearing = np.abs(np.arctan2(g[:, 1], g[:, 0] - T[0, 3]))
+    seen = np.abs(np.arctan2(P[:, 1], P[:, 0] - T[0, 3])).max()
+    g = g[bearing < seen - np.radians(3.0)]
+    assert len(g) >= 20
+    assert set(map(tuple, np.floor(g / 0.05).astype(int))) <= _cells(sh)
+    # required: the sample heights up to the top's (0.1 and 0.3 m), hidden below the view
+    assert np.all(sh.required == 0b00011)
+    # the same view again sees none of it (it is below the view): nothing clears
+    _, cleared = sh.observe(np.zeros((0, 3)), T, depth, D435_INTR)
+    assert cleared == 0
+    # from 1 m farther back the whole column is in view and the box gone: all seen free
+    T_back = T.copy()
+    T_back[0, 3] -= 1.0
+    _, cleared = sh.observe(np.zeros((0, 3)), T_back, _raycast(T_back, D435_INTR, []), D435_INTR)
+    assert cleared == len(new) and len(sh) == 0
+
+
+def test_a_wall_at_the_lower_border_does_not_continue_below_the_view():
+    T = _pitched_cam()
+    wall = ((0.8, -2.0, 0.0), (0.9, 2.0, 2.0))  # its face at x = 0.8 fills the bottom rows
+    depth = _raycast(T, D435_INTR, [wall])
+    P, pix = _bottom_points(T, D435_INTR, depth)
+    assert len(P) and np.allclose(P[:, 0], 0.8, atol=1e-6)
+    cont = may_continue_below_view(depth, D435_INTR, T, rows=5, step=2, jump=0.15)
+    assert not cont[pix[:, 0], pix[:, 1]].any()
+    assert not cont[: 240 - 5].any()  # only the bottom rows are ever marked
+
+
+def test_blind_shadow_bad_input_is_named():
+    T = _pitched_cam()
+    sh = OcclusionShadow(0.05, 0.3)
+    with pytest.raises(ValueError, match="depth"):
+        sh.cast_below_view(np.zeros((1, 3)), T, D435_INTR, depth=0.01)
+    with pytest.raises(ValueError, match="points"):
+        sh.cast_below_view(np.array([[np.nan, 0.0, 0.3]]), T, D435_INTR, depth=0.6)
+    with pytest.raises(ValueError, match="T_world_cam"):
+        sh.cast_below_view(np.zeros((1, 3)), np.eye(3), D435_INTR, depth=0.6)
+    with pytest.raises(ValueError, match="depth shape"):
+        may_continue_below_view(np.zeros((10, 10)), D435_INTR, T, 5, 2, 0.15)
+    with pytest.raises(ValueError, match="rows"):
+        may_continue_below_view(np.zeros((240, 320)), D435_INTR, T, 0, 2, 0.15)

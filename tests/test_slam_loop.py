@@ -26,16 +26,25 @@ def _run(folder, cfg):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("per_frame", [0, 1])
+@pytest.mark.parametrize(
+    "per_frame",
+    [
+        {},
+        {"revisit_checks_per_frame": 1},
+        {"revisit_registrations_per_frame": 1, "revisit_min_overlap": 0.5},
+    ],
+    ids=["at_once", "candidate_per_frame", "registration_per_frame"],
+)
 def test_loop_revisit_lowers_ate(tmp_path, per_frame):
-    # per_frame 1: the revisit candidates are checked one per following frame (the agent's
-    # setting, bounded work per control step) instead of all when the frame opens
+    # the revisit candidates are checked all when the frame opens, one candidate per
+    # following frame, or one registration per following frame among the candidates that
+    # overlap the observation (the agent's settings: bounded work per control step)
     # Start -> A -> B -> start -> 1.2 m along the first leg (~370 frames, 160x120), wheel
     # odometry with 10 % scale / heading noise so that the drift is well above the tracking
     # noise (docs/slam.md: at 320x240, 2.7 cm online -> 1.6 cm after the loop closures).
     folder = tmp_path / "loop"
     record_sequence(folder, "loop", width=160, height=120, odom_noise=(0.1, 0.1))
-    base = SlamConfig(map_kind="points", revisit_checks_per_frame=per_frame)
+    base = SlamConfig(map_kind="points", **per_frame)
     slam0, gt = _run(folder, base.replace(revisits=False))
     slam1, _ = _run(folder, base)
     assert slam0.stats()["revisits_accepted"] == 0

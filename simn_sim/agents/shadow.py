@@ -87,6 +87,61 @@ def below_top_contour(depth: np.ndarray, jump: float, half_width: int = 3) -> np
     return valid & np.take_along_axis(top, start, axis=0)
 
 
+def may_continue_below_view(
+    depth: np.ndarray,
+    intr: Intrinsics,
+    T_world_cam: np.ndarray,
+    rows: int,
+    step: int,
+    jump: float,
+    max_slope_deg: float = 60.0,
+) -> np.ndarray:
+    """(H, W) bool: pixels in the image's bottom ``rows`` rows whose surface may go on towards
+    the camera beneath the view (a box top or a seat seen up to the image's lower border).
+    Only a surface seen to be vertical is ruled out: a wall or a box's side ends where it is
+    seen. A pixel is on a vertical surface when the pixel ``step`` rows above it in the same
+    column is on the same surface (depth within ``jump`` metres) and, both back-projected into
+    the planning frame (z up), the height between them changes by more than
+    tan(``max_slope_deg``) x the change of horizontal range. A pixel whose neighbour above is
+    farther by more than ``jump`` (a top edge: a thin sliver of a top is all that is in view)
+    or has no return may continue."""
+    d = np.asarray(depth, dtype=np.float64)
+    if d.shape != (intr.height, intr.width):
+        raise ValueError(
+            f"depth shape {d.shape} does not match the intrinsics ({intr.height}, {intr.width})"
+        )
+    H, W = d.shape
+    if not (step >= 1 and 1 <= rows <= H - step):
+        raise ValueError(
+            f"may_continue_below_view: need step >= 1 and 1 <= rows <= H - step, got {rows}, {step}"
+        )
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    v = np.arange(H - rows, H)
+    uu = np.arange(W, dtype=np.float64)
+
+    def world(rows_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z = d[rows_]
+        x = (uu[None, :] - intr.cx) / intr.fx * z
+        y = (rows_[:, None] - intr.cy) / intr.fy * z
+        P = np.stack([x, y, z], -1).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+        return P.reshape(len(rows_), W, 3), z
+
+    lo, zl = world(v)
+    hi, zh = world(v - step)
+    cam = T[:2, 3]
+    dr = np.abs(
+        np.hypot(hi[..., 0] - cam[0], hi[..., 1] - cam[1])
+        - np.hypot(lo[..., 0] - cam[0], lo[..., 1] - cam[1])
+    )
+    dz = np.abs(hi[..., 2] - lo[..., 2])
+    valid = np.isfinite(zl) & (zl > 0)
+    same = valid & np.isfinite(zh) & (zh > 0) & (np.abs(zh - zl) <= jump)
+    vertical = same & (dz > np.tan(np.radians(max_slope_deg)) * dr)
+    out = np.zeros((H, W), bool)
+    out[H - rows :] = valid & ~vertical
+    return out
+
+
 class OcclusionShadow:
     """Shadow cells behind observed obstacle points, with per-height free-space evidence."""
 
@@ -263,8 +318,72 @@ class OcclusionShadow:
             * (nrm[None, :, None, :])
         )  # (3, N, T, 2)
         ij = np.floor(xy[:, sel] / self.resolution).astype(np.int64).reshape(-1, 2)
-        k = _pack(ij)
-        m = np.tile(mask[sel].astype(np.uint8), 3)
+        return self._merge(_pack(ij), np.tile(mask[sel].astype(np.uint8), 3), obstacle_cells)
+
+    def cast_below_view(
+        self,
+        points: np.ndarray,
+        T_world_cam: np.ndarray,
+        intr: Intrinsics,
+        depth: float,
+        height_tol: float = 0.05,
+    ) -> np.ndarray:
+        """Blind-zone shadow of obstacle points ``points`` (N, 3, planning frame) that lie at
+        the bottom edge of the view on a near-horizontal surface (``on_flat_bottom_edge``): a
+        box top or a seat seen up to the image's lower border may go on towards the camera
+        beneath the view, where the camera cannot see it from here (a 0.34 m box is out of
+        view within about 0.65 m of a camera at 1.0 m pitched down 24 deg). Along the
+        horizontal direction from each point towards the camera, up to ``depth`` metres, the
+        column samples at heights up to the point's own (+ ``height_tol``) that project below
+        the image's lower border (or behind the camera) become required shadow samples; samples
+        in view are not (this image shows what is there). They clear like occlusion shadows:
+        once a later view sees through them, or the robot's footprint covers them. Returns the
+        keys of the new shadow cells."""
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"T_world_cam must be a finite (4, 4) pose, got shape {T.shape}")
+        if not (np.isfinite(depth) and depth >= self.resolution):
+            raise ValueError(f"cast_below_view: depth must be >= {self.resolution}, got {depth}")
+        p = _check_points(points, "points", 3)
+        if not len(p):
+            return np.zeros(0, np.int64)
+        pk = _pack(np.floor(p[:, :2] / self.resolution).astype(np.int64))
+        obstacle_cells = np.unique(pk)
+        cam = T[:3, 3]
+        dxy = p[:, :2] - cam[:2]
+        r = np.linalg.norm(dxy, axis=1)
+        ok = r > self.resolution
+        if not ok.any():
+            return np.zeros(0, np.int64)
+        p, dxy, r = p[ok], dxy[ok], r[ok]
+        u = dxy / r[:, None]
+        t = np.arange(self.resolution, depth + 1e-9, 0.5 * self.resolution)
+        tt = np.minimum(t[None, :], r[:, None])  # never past the camera
+        xy = p[:, None, :2] - u[:, None, :] * tt[..., None]  # (N, T, 2) towards the camera
+        nh = len(self.heights)
+        P = np.concatenate(
+            [
+                np.broadcast_to(xy[:, :, None, :], (*xy.shape[:2], nh, 2)),
+                np.broadcast_to(self.heights[None, None, :, None], (*xy.shape[:2], nh, 1)),
+            ],
+            axis=-1,
+        ).reshape(-1, 3)
+        pc = transform_points(inv_T(T), P)
+        z = pc[:, 2]
+        v = intr.fy * pc[:, 1] / np.where(z > 1e-6, z, 1.0) + intr.cy
+        hidden = (z <= 1e-6) | (v > intr.height - 0.5)
+        hidden = hidden.reshape(len(p), len(t), nh)
+        hidden &= self.heights[None, None, :] <= p[:, 2, None, None] + height_tol
+        mask = (hidden * (1 << np.arange(nh))[None, None, :]).sum(-1)
+        sel = mask > 0
+        if not sel.any():
+            return np.zeros(0, np.int64)
+        ij = np.floor(xy[sel] / self.resolution).astype(np.int64)
+        return self._merge(_pack(ij), mask[sel].astype(np.uint8), obstacle_cells)
+
+    def _merge(self, k: np.ndarray, m: np.ndarray, obstacle_cells: np.ndarray) -> np.ndarray:
+        """Add cells ``k`` with required-height masks ``m`` (OR-ed per cell), except obstacle
+        cells and known-free cells; returns the keys of the cells that are new."""
         order = np.argsort(k, kind="stable")
         k, m = k[order], m[order]
         uk, start = np.unique(k, return_index=True)

@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 
 from simn_sim.agents.base import register_agent
-from simn_sim.agents.shadow import OcclusionShadow, below_top_contour
+from simn_sim.agents.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
@@ -108,6 +108,13 @@ class SimnAgentConfig(Config):
     # only points of surfaces whose top edge is in view cast shadows (``below_top_contour``,
     # contours are depth jumps above this many metres): walls and door jambs do not
     shadow_edge_jump: float = 0.15
+    # blind-zone shadows (pose_source "slam", with shadows on): an obstacle point at the
+    # image's lower border, unless on a surface seen to be vertical (a box top, a seat, a
+    # sliver of a top edge: ``may_continue_below_view``), may go on towards
+    # the camera beneath the view, where the camera cannot see from where it stands (a 0.34 m
+    # box is out of view within about 0.65 m of the camera). The hidden space up to this far
+    # (m) from the point towards the camera is soft shadow like the occlusion shadows; 0: off
+    blind_shadow_depth: float = 0.6
     # topological guidance over the local frames (pose_source="slam"): see SimnAgent._subgoal
     topo_guidance: bool = True
     topo_reach: float = 0.6  # a route node this close to the robot counts as reached (m)
@@ -144,6 +151,12 @@ class SimnAgentConfig(Config):
             self.shadow_depth == 0 or self.shadow_depth >= self.collision.resolution,
             n,
             "shadow_depth",
+            f"must be 0 (off) or >= the collision resolution ({self.collision.resolution} m)",
+        )
+        require(
+            self.blind_shadow_depth == 0 or self.blind_shadow_depth >= self.collision.resolution,
+            n,
+            "blind_shadow_depth",
             f"must be 0 (off) or >= the collision resolution ({self.collision.resolution} m)",
         )
         require(self.shadow_range > 0, n, "shadow_range", "must be > 0")
@@ -420,6 +433,23 @@ class SimnAgent:
         n_cleared = self.shadow.traverse(xy, c.robot_radius)
         new, n_seen = self.shadow.observe(obstacle_points[band], T_wc, depth, intr)
         self._shadow_dirty |= n_cleared + n_seen > 0
+        if self.cfg.blind_shadow_depth > 0 and len(obstacle_points):
+            H = depth.shape[0]
+            rows = max(2, math.ceil(0.02 * H))  # the bottom 2 % of the image
+            bottom = pixels[:, 0] >= H - rows
+            bottom &= (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
+            if bottom.any():
+                step = max(2, round(0.01 * H))
+                flat = may_continue_below_view(
+                    depth, intr, T_wc, rows, step, self.cfg.shadow_edge_jump
+                )
+                sel = np.flatnonzero(bottom)
+                sel = sel[flat[pixels[sel, 0], pixels[sel, 1]]]
+                if len(sel):
+                    blind = self.shadow.cast_below_view(
+                        obstacle_points[sel], T_wc, intr, self.cfg.blind_shadow_depth
+                    )
+                    new = np.union1d(new, blind)
         return new
 
     def _add_shadow(self, keys: np.ndarray) -> None:

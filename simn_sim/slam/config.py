@@ -149,6 +149,16 @@ class SlamConfig(Config):
     # 0: all revisit candidates are checked when a frame opens (a 100-600 ms step on 2 CPU
     # cores); k > 0: k candidates per following frame (bounded work per control step)
     revisit_checks_per_frame: int = 0
+    # k > 0: a deferred check instead runs at most k registrations per following frame (each
+    # candidate's yaw search is spread over frames too; same result as checking at once, since
+    # the observation and its pose, the frame's anchor, are kept); overrides the above
+    revisit_registrations_per_frame: int = 0
+    # a revisit candidate is checked only when at least this fraction of the observation lies
+    # in its region (x-y box) grown by loop.max_correction_m (the check's drift budget: with
+    # less overlap the registration cannot pass it); 0: every descriptor candidate is checked
+    revisit_min_overlap: float = 0.0
+    # frame descriptors from at most this many key points (DescriptorConfig.max_points); 0: all
+    describe_max_points: int = 0
     # obstacle / floor point stores (per local frame, anchor coordinates)
     obstacle_voxel: float = 0.05
     floor_voxel: float = 0.10
@@ -229,6 +239,14 @@ class SlamConfig(Config):
         require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")
         require(self.depth_sigma_per_m2 >= 0, n, "depth_sigma_per_m2", "must be >= 0")
         require(self.revisit_checks_per_frame >= 0, n, "revisit_checks_per_frame", "must be >= 0")
+        require(0 <= self.revisit_min_overlap <= 1, n, "revisit_min_overlap", "must be in [0, 1]")
+        require(self.describe_max_points >= 0, n, "describe_max_points", "must be >= 0 (0: all)")
+        require(
+            self.revisit_registrations_per_frame >= 0,
+            n,
+            "revisit_registrations_per_frame",
+            "must be >= 0",
+        )
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
@@ -276,6 +294,9 @@ class SlamConfig(Config):
             max_track_points=2500,
             map_kind="points",
             revisit_checks_per_frame=1,
+            revisit_registrations_per_frame=1,
+            revisit_min_overlap=0.5,
+            describe_max_points=3000,
             # nearest-point SDF: the kernel's 8-neighbour queries doubled tracking time in the
             # loop (median 17 -> 47 ms per frame at 320x240, docs/navigation.md)
             point_sdf_kernel=0.0,

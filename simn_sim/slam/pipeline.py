@@ -52,7 +52,7 @@ from simn_sim.tracking.localframes import FrameTrigger, LocalFrame, unpack_featu
 from simn_sim.tracking.pointsdf import PointCloudSDF
 from simn_sim.tracking.posegraph import covariance_from_sigmas
 from simn_sim.tracking.registration import register
-from simn_sim.tracking.topomap import TopoMap, close_loop, describe
+from simn_sim.tracking.topomap import DescriptorConfig, TopoMap, close_loop_steps, describe
 
 
 @dataclasses.dataclass
@@ -255,7 +255,7 @@ class SimnSlam:
         self._cv_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
         sr, st = np.radians(c.odom_prior_sigma_rot_deg), c.odom_prior_sigma_trans
         self._odom_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
-        self.topo = TopoMap()
+        self.topo = TopoMap(DescriptorConfig(max_points=self.cfg.describe_max_points))
         self.trigger = FrameTrigger(self.cfg.trigger)
         self._states: dict[int, _FrameState] = {}
         self._base_map: ImplicitMap | None = None
@@ -274,6 +274,9 @@ class SimnSlam:
         self.loop_log: list[dict[str, Any]] = []
         # deferred revisit checks (revisit_checks_per_frame > 0): (frame, points, candidates)
         self._pending_revisit: tuple[int, np.ndarray, list[int]] | None = None
+        # revisit_registrations_per_frame > 0: the deferred check in progress, a
+        # ``close_loop_steps`` generator advanced that many registrations per frame
+        self._revisit_job: tuple[int, Any] | None = None
 
     # ------------------------------------------------------------------ perception
     def _perceive(self, rgb: np.ndarray | None, depth: np.ndarray) -> dict[str, np.ndarray]:
@@ -544,9 +547,14 @@ class SimnSlam:
             self._hist = [(tt, inv_T(self.topo.anchor(fid)) @ self.topo.anchor(old) @ T)
                           for tt, T in self._hist]  # fmt: skip
             T_anchor_cam = np.eye(4)
-            self._pending_revisit = None
+            self._pending_revisit = self._revisit_job = None
             if self.cfg.revisits and len(track_pts) >= 100:
-                if self.cfg.revisit_checks_per_frame > 0:
+                if self.cfg.revisit_registrations_per_frame > 0:
+                    cands = self._revisit_candidates(fid, track_pts, T_world_cam)
+                    if cands:
+                        steps = self._revisit_steps(fid, track_pts, T_world_cam, cands)
+                        self._revisit_job = (fid, steps)
+                elif self.cfg.revisit_checks_per_frame > 0:
                     cands = self._revisit_candidates(fid, track_pts, T_world_cam)
                     if cands:
                         self._pending_revisit = (fid, track_pts, cands)
@@ -555,6 +563,18 @@ class SimnSlam:
                     if revisit_fid is not None:
                         revisit = True
                         T_world_cam = self.topo.anchor(fid) @ T_anchor_cam
+        elif not first and self._revisit_job is not None:
+            # deferred, spread over frames registration by registration (the opening
+            # observation of the current frame, at the frame's anchor, against the candidates)
+            pfid, steps = self._revisit_job
+            done, revisit_fid = self._advance_revisit(
+                pfid, steps, self.cfg.revisit_registrations_per_frame
+            )
+            if done:
+                self._revisit_job = None
+            if revisit_fid is not None:
+                revisit = True
+                T_world_cam = self.topo.anchor(self.current_frame_id) @ T_anchor_cam
         elif not first and self._pending_revisit is not None:
             # deferred: the opening observation of the current frame against the next
             # candidates (its camera pose then was the frame's anchor)
@@ -718,11 +738,21 @@ class SimnSlam:
         if len(self._states) <= self.cfg.loop.exclude_recent + 1:
             return []
         c = self.cfg.loop
-        desc = describe(
-            transform_points(T_world_cam, pts.astype(np.float64)), None, self.topo.desc_cfg
-        )
+        Pw = transform_points(T_world_cam, pts.astype(np.float64))
+        desc = describe(Pw, None, self.topo.desc_cfg)
         found = self.topo.candidates(desc, c.exclude_recent, c.top, c.min_similarity, exclude=[fid])
-        return [int(f) for f, _ in found]
+        out = []
+        for f, _ in found:
+            if self.cfg.revisit_min_overlap > 0:
+                # the check moves the guess by at most max_correction_m: an observation that
+                # does not reach the candidate's region grown by that much cannot pass it
+                r = self.topo.region(f)
+                g = c.max_correction_m
+                inside = np.all((Pw[:, :2] >= r[:2] - g) & (Pw[:, :2] <= r[2:] + g), axis=1)
+                if not np.all(np.isfinite(r)) or inside.mean() < self.cfg.revisit_min_overlap:
+                    continue
+            out.append(int(f))
+        return out
 
     def _revisit(
         self,
@@ -731,23 +761,41 @@ class SimnSlam:
         T_world_cam: np.ndarray,
         candidate_ids: list[int] | None = None,
     ) -> int | None:
+        """The whole revisit check of frame ``fid``'s observation ``pts`` now."""
         if candidate_ids is None and len(self._states) <= self.cfg.loop.exclude_recent + 1:
             return None
+        steps = self._revisit_steps(fid, pts, T_world_cam, candidate_ids)
+        return self._advance_revisit(fid, steps, None)[1]
+
+    def _revisit_steps(
+        self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray, candidate_ids: list[int] | None
+    ):
+        # candidates() skips the most recent frames; untrained maps have no descriptor
+        return close_loop_steps(
+            self.topo,
+            fid,
+            pts,
+            T_world_cam,
+            self._loop_register,
+            self.cfg.loop,
+            candidate_ids=candidate_ids,
+            pose_graph_cfg=self.cfg.pose_graph,
+        )
+
+    def _advance_revisit(self, fid: int, steps: Any, budget: int | None) -> tuple[bool, int | None]:
+        """Run a revisit check's ``close_loop_steps`` generator for at most ``budget``
+        registrations (None: to the end). Returns (finished, accepted frame or None)."""
+        n = 0
         try:
-            # candidates() skips the most recent frames; untrained maps have no descriptor
-            res = close_loop(
-                self.topo,
-                fid,
-                pts,
-                T_world_cam,
-                self._loop_register,
-                self.cfg.loop,
-                candidate_ids=candidate_ids,
-                pose_graph_cfg=self.cfg.pose_graph,
-            )
+            while budget is None or n < budget:
+                next(steps)
+                n += 1
+            return False, None
+        except StopIteration as done:
+            res = done.value
         except Exception as e:  # noqa: BLE001 - a failed revisit check must not stop tracking
             self.loop_log.append({"frame": fid, "error": f"{type(e).__name__}: {e}"})
-            return None
+            return True, None
         self.loop_log.append(
             {
                 "frame": fid,
@@ -764,10 +812,10 @@ class SimnSlam:
             }  # fmt: skip
         )
         if res.accepted is None:
-            return None
+            return True, None
         self.n_revisits += 1
         self.anchors_version += 1
-        return int(res.accepted)
+        return True, int(res.accepted)
 
     # ------------------------------------------------------------------ semantics / stores
     def _classify(self, obs: dict[str, np.ndarray], T_world_cam: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ re-optimised ("because points live in frame coordinates, moving an anchor moves 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Generator, Iterable
 from typing import Any
 
 import networkx as nx
@@ -58,10 +58,15 @@ class DescriptorConfig(Config):
     occupancy_weight: float = 1.0
     shape_weight: float = 0.5
     feature_weight: float = 0.5
+    # a frame with more key points is described by an even stride subsample of at most this
+    # many (its region always uses all of them); 0: all. Descriptors are recomputed for every
+    # frame whose anchor the pose graph moves, and a 1 m occupancy grid needs few points.
+    max_points: int = 0
 
     def validate(self) -> None:
         n = type(self).__name__
         require(self.occupancy_cell > 0, n, "occupancy_cell", "must be > 0")
+        require(self.max_points >= 0, n, "max_points", "must be >= 0 (0: all points)")
         require(self.height_range[1] > self.height_range[0], n, "height_range", "must increase")
         require(self.height_bins >= 2 and self.radius_bins >= 2, n, "height_bins", "need >= 2 bins")
         require(self.radius_max > 0, n, "radius_max", "must be > 0")
@@ -191,6 +196,10 @@ class TopoMap:
         if descriptor is not None:
             node["descriptor"], node["auto_descriptor"] = descriptor, False
         elif node.get("auto_descriptor", True):
+            m = self.desc_cfg.max_points
+            if m and len(P) > m:
+                k = -(-len(P) // m)
+                Pw, F = Pw[::k], F[::k]
             node["descriptor"] = describe(Pw, F, self.desc_cfg) if len(P) else None
             node["auto_descriptor"] = True
 
@@ -405,6 +414,33 @@ def close_loop(
     from ``candidate_ids``. A candidate is accepted when ``register_fn(fid, points_cam,
     T_fid_cam_guess)`` succeeds and moves the guess by at most the drift budget.
     """
+    steps = close_loop_steps(
+        topo, current, points_cam, T_world_cam, register_fn, cfg, descriptor, candidate_ids,
+        pose_graph_cfg,
+    )  # fmt: skip
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def close_loop_steps(
+    topo: TopoMap,
+    current: int,
+    points_cam: np.ndarray,
+    T_world_cam: np.ndarray,
+    register_fn: RegisterFn,
+    cfg: LoopClosureConfig | None = None,
+    descriptor: FrameDescriptor | None = None,
+    candidate_ids: Iterable[int] | None = None,
+    pose_graph_cfg: PoseGraphConfig | None = None,
+) -> Generator[None, None, LoopClosureResult]:
+    """:func:`close_loop` as a generator that yields after each registration and returns the
+    :class:`LoopClosureResult` (``StopIteration.value``): a caller with a time budget per frame
+    (the 10 Hz control loop) advances it one registration per frame. The result is the same as
+    ``close_loop``'s with the same arguments, provided the topological map does not change in
+    between (``T_world_cam`` is the pose the observation was taken at, e.g. a frame's anchor)."""
     cfg = cfg or LoopClosureConfig()
     T_world_cam = check_pose(T_world_cam, "T_world_cam")
     T_cur_cam = inv_T(topo.anchor(current)) @ T_world_cam
@@ -428,6 +464,7 @@ def close_loop(
             Tw = T_world_cam.copy()
             Tw[:3, :3] = rot_z(np.radians(yaw)) @ Tw[:3, :3]
             res = register_fn(fid, points_cam, inv_T(A) @ Tw)
+            yield
             if not res.success:
                 whys.append(f"{yaw:+.1f} deg: registration: {res.reason}")
                 continue
