@@ -349,3 +349,28 @@ def test_close_loop_steps_yields_per_registration_and_matches_close_loop() -> No
     assert [a.reason for a in ra.attempts] == [a.reason for a in rb.attempts]
     assert np.allclose(ra.T_i_j, rb.T_i_j, atol=1e-9)
     assert all(np.allclose(ta.anchor(k), tb.anchor(k), atol=1e-9) for k in ta.frame_ids)
+
+
+def test_descriptor_from_a_subsample_keeps_the_region_and_the_ranking(drifted_topomap) -> None:
+    """``DescriptorConfig.max_points`` (the agent preset describes frames from 3000 points):
+    regions still come from every point; on a 1 m occupancy grid the subsampled descriptor
+    ranks the revisited frames as the full one does."""
+    from simn_sim.tracking.topomap import DescriptorConfig, similarity
+
+    topo, gt, obs, est = drifted_topomap
+    full = TopoMap()
+    sub = TopoMap(DescriptorConfig(max_points=300))  # frames hold 2500 points: every 9th
+    for i in range(len(gt)):
+        for t in (full, sub):
+            fr = topo.frame(i)
+            t.add_frame(LocalFrame(i, fr.T_world_anchor.copy(), fr.map))
+    cur = len(gt) - 1
+    for i in range(len(gt)):
+        assert np.array_equal(full.region(i), sub.region(i))
+        assert similarity(full.descriptor(i), sub.descriptor(i)) > 0.95
+    d = describe(topo.frame(cur).points_world())
+    top_full = [f for f, _ in full.candidates(d, exclude_recent=4, top=3)]
+    top_sub = [f for f, _ in sub.candidates(d, exclude_recent=4, top=3)]
+    assert top_sub[0] == top_full[0] and top_sub[0] in (0, 1)
+    with pytest.raises(_ConfigError, match="max_points"):
+        DescriptorConfig(max_points=-1)
