@@ -129,17 +129,25 @@ def _room_with_chair_ahead():
     return lay
 
 
-@pytest.mark.parametrize("shadow_depth", [0.0, 0.3])
-def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_depth):
+def _one_view(layout, agent_cfg: dict):
+    """Env on ``layout`` (320x240), the robot at (6, 4) facing +x with the goal 5 m ahead, and
+    a ``simn`` agent reset on the first view (no look-around)."""
     from test_env import _env_with_layout
 
+    e = _env_with_layout(layout, width=320, height=240)
+    ep = {"episode_id": "view", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
+    obs, info = e.reset(options={"episode": ep})
+    agent = make_agent("simn", e, {"initial_scan_deg": 0.0, **agent_cfg})
+    agent.reset(obs, info)
+    return e, agent
+
+
+@pytest.mark.parametrize("shadow_depth", [0.0, 0.3])
+def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_depth):
     from simn_sim.planning.smoothing import push_from_obstacles
 
-    e = _env_with_layout(_room_with_chair_ahead(), width=320, height=240)
-    ep = {"episode_id": "chair", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
-    obs, info = e.reset(options={"episode": ep})
-    agent = make_agent("simn", e, {"shadow_depth": shadow_depth, "initial_scan_deg": 0.0})
-    agent.reset(obs, info)  # one view of the chair from 1.2 m
+    # one view of the chair from 1.2 m
+    e, agent = _one_view(_room_with_chair_ahead(), {"shadow_depth": shadow_depth})
     # agent (start) frame: the back's visible face at x = 1.1875, the seat x in [1.2125, 1.6525],
     # |y| <= 0.22; the back is mapped, the seat is not
     assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
@@ -164,13 +172,8 @@ def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_
 
 
 def test_shadows_are_cast_only_within_shadow_range():
-    from test_env import _env_with_layout
-
-    e = _env_with_layout(_room_with_chair_ahead(), width=320, height=240)
-    ep = {"episode_id": "chair", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
-    obs, info = e.reset(options={"episode": ep})
-    agent = make_agent("simn", e, {"shadow_range": 0.9, "initial_scan_deg": 0.0})
-    agent.reset(obs, info)  # the back is 0.97 m from the camera: beyond 0.9 m
+    # the back is 0.97 m from the camera: beyond 0.9 m
+    e, agent = _one_view(_room_with_chair_ahead(), {"shadow_range": 0.9})
     assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
     assert len(agent.shadow) == 0
     e.close()
@@ -198,13 +201,7 @@ def _room_with_low_box_ahead():
 
 @pytest.mark.parametrize("blind", [0.0, 0.6])
 def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
-    from test_env import _env_with_layout
-
-    e = _env_with_layout(_room_with_low_box_ahead(), width=320, height=240)
-    ep = {"episode_id": "low", "layout_seed": None, "start": [6.0, 4.0, 0.0], "goal": [11.0, 4.0]}
-    obs, info = e.reset(options={"episode": ep})
-    agent = make_agent("simn", e, {"blind_shadow_depth": blind, "initial_scan_deg": 0.0})
-    agent.reset(obs, info)  # one view
+    e, agent = _one_view(_room_with_low_box_ahead(), {"blind_shadow_depth": blind})
     # start frame: the box x in [0.55, 1.0], |y| <= 0.3; only x >= 0.874 is in view
     assert float(agent.checker.clearance(np.array([[0.95, 0.0]]))[0]) < 0.06
     assert float(agent.checker.clearance(np.array([[0.6, 0.0]]))[0]) > 0.2  # unseen part
