@@ -440,11 +440,11 @@ class SimnAgent:
             bottom &= (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
             if bottom.any():
                 step = max(2, round(0.01 * H))
-                flat = may_continue_below_view(
+                cont = may_continue_below_view(
                     depth, intr, T_wc, rows, step, self.cfg.shadow_edge_jump
                 )
                 sel = np.flatnonzero(bottom)
-                sel = sel[flat[pixels[sel, 0], pixels[sel, 1]]]
+                sel = sel[cont[pixels[sel, 0], pixels[sel, 1]]]
                 if len(sel):
                     blind = self.shadow.cast_below_view(
                         obstacle_points[sel], T_wc, intr, self.cfg.blind_shadow_depth
