@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import inv_T, transform_points
 
 _BITS = 31
@@ -116,18 +116,13 @@ def may_continue_below_view(
             f"may_continue_below_view: need step >= 1 and 1 <= rows <= H - step, got {rows}, {step}"
         )
     T = np.asarray(T_world_cam, dtype=np.float64)
-    v = np.arange(H - rows, H)
-    uu = np.arange(W, dtype=np.float64)
-
-    def world(rows_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        z = d[rows_]
-        x = (uu[None, :] - intr.cx) / intr.fx * z
-        y = (rows_[:, None] - intr.cy) / intr.fy * z
-        P = np.stack([x, y, z], -1).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
-        return P.reshape(len(rows_), W, 3), z
-
-    lo, zl = world(v)
-    hi, zh = world(v - step)
+    # the bottom rows and the rows ``step`` above them, back-projected in one band
+    v0 = H - rows - step
+    band_intr = Intrinsics(W, rows + step, intr.fx, intr.fy, intr.cx, intr.cy - v0)
+    Pc = backproject(d[v0:], band_intr).reshape(-1, 3).astype(np.float64)
+    band = transform_points(T, Pc).reshape(rows + step, W, 3)
+    lo, hi = band[step:], band[:rows]
+    zl, zh = d[H - rows :], d[v0 : H - step]
     cam = T[:2, 3]
     dr = np.abs(
         np.hypot(hi[..., 0] - cam[0], hi[..., 1] - cam[1])
@@ -329,8 +324,9 @@ class OcclusionShadow:
         height_tol: float = 0.05,
     ) -> np.ndarray:
         """Blind-zone shadow of obstacle points ``points`` (N, 3, planning frame) that lie at
-        the bottom edge of the view on a near-horizontal surface (``on_flat_bottom_edge``): a
-        box top or a seat seen up to the image's lower border may go on towards the camera
+        the bottom edge of the view on a surface not seen to be vertical
+        (``may_continue_below_view``): a box top or a seat seen up to the image's lower border
+        may go on towards the camera
         beneath the view, where the camera cannot see it from here (a 0.34 m box is out of
         view within about 0.65 m of a camera at 1.0 m pitched down 24 deg). Along the
         horizontal direction from each point towards the camera, up to ``depth`` metres, the

@@ -421,8 +421,8 @@ class SimnAgent:
         if self.shadow is None:
             return np.zeros(0, np.int64)
         c = self.cfg.collision
-        band = (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
-        band &= np.hypot(*(obstacle_points[:, :2] - T_wc[:2, 3]).T) <= self.cfg.shadow_range
+        in_z = (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
+        band = in_z & (np.hypot(*(obstacle_points[:, :2] - T_wc[:2, 3]).T) <= self.cfg.shadow_range)
         if pixels is None:
             raise ValueError("occlusion shadows need the pixel of each obstacle point")
         if band.any():  # the top contours only matter for points that may cast
@@ -436,8 +436,7 @@ class SimnAgent:
         if self.cfg.blind_shadow_depth > 0 and len(obstacle_points):
             H = depth.shape[0]
             rows = max(2, math.ceil(0.02 * H))  # the bottom 2 % of the image
-            bottom = pixels[:, 0] >= H - rows
-            bottom &= (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
+            bottom = in_z & (pixels[:, 0] >= H - rows)
             if bottom.any():
                 step = max(2, round(0.01 * H))
                 cont = may_continue_below_view(
