@@ -182,6 +182,16 @@ def test_shadows_are_cast_only_within_shadow_range():
 def test_shadow_config_is_validated(env):
     with pytest.raises(ConfigError, match="shadow_depth"):
         make_agent("simn", env.unwrapped, {"shadow_depth": 0.01})
+    with pytest.raises(ConfigError, match="blind_shadow_depth"):
+        make_agent("simn", env.unwrapped, {"blind_shadow_depth": 0.01})
+    # the SLAM preset's revisit settings, passed through the agent config
+    for key, bad in [
+        ("revisit_min_overlap", 1.5),
+        ("revisit_registrations_per_frame", -1),
+        ("describe_max_points", -1),
+    ]:
+        with pytest.raises(ConfigError, match=key):
+            make_agent("simn", env.unwrapped, {"slam": {key: bad}}).reset(*env.reset(seed=0))
 
 
 def _room_with_low_box_ahead():
