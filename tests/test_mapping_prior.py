@@ -190,3 +190,60 @@ def test_registration_on_the_prior_map_of_an_analytic_office():
     assert res.success, res.reason
     e = se3_log(np.linalg.inv(T_true) @ res.pose)
     assert np.linalg.norm(e[3:]) < 2e-3 and np.degrees(np.linalg.norm(e[:3])) < 0.2
+
+
+def _noisy_plane(sigma=0.004, seed=0):
+    """The tilted plane with its points moved along the normal by Gaussian noise (a noisy
+    depth map of it), and the exact normals."""
+    P, n = _tilted_plane()
+    rng = np.random.default_rng(seed)
+    Pn = (P + rng.normal(0.0, sigma, (len(P), 1)) * n).astype(np.float32)
+    return Pn, n, np.broadcast_to(n, P.shape).astype(np.float32)
+
+
+def test_prior_grad_planes_is_the_blended_normal_on_noisy_points():
+    # On a noisy plane the neighbours' plane distances differ by the noise; differentiating
+    # through the Gaussian blend weights turns those differences into a tangential gradient.
+    # With prior_grad "planes" the weights are held: the gradient is the blend of the
+    # neighbours' normals, here exactly n. The value is the same either way.
+    Pn, n, nrm = _noisy_plane()
+    pts = {"voxel_size": 0.02, "weighting": "gaussian", "gaussian_width": 0.015}
+    maps = {}
+    for mode in ("full", "planes"):
+        m = ImplicitMap(_cfg({"residual": False, "prior_grad": mode}, points=pts))
+        m.integrate_frame(Pn, np.eye(4), train=False, normals=nrm)
+        maps[mode] = m
+    P, _ = _tilted_plane()
+    X = P[::5] + 0.005 * n.astype(np.float32)
+    full = maps["full"].query(X, with_grad=True)
+    held = maps["planes"].query(X, with_grad=True)
+    assert held.valid.all() and full.valid.all()
+    np.testing.assert_allclose(held.sdf, full.sdf, atol=1e-6)
+    np.testing.assert_allclose(held.grad, np.broadcast_to(n, held.grad.shape), atol=1e-5)
+    tangential = full.grad - (full.grad @ n)[:, None] * n
+    assert np.median(np.linalg.norm(tangential, axis=1)) > 0.05  # what "planes" removes
+    with pytest.raises(ConfigError, match="prior_grad"):
+        MapperConfig.from_dict({"decoder": {"prior_grad": "planes", "decoding": "per_neighbor"}})
+
+
+def test_residual_weight_shrinks_the_learned_residual():
+    # The residual fitted to noisy labels moves the surface off the averaged prior; a Gaussian
+    # prior on the residual (residual_weight) keeps it closer to zero. residual = sdf - prior,
+    # the prior read from a prior-only map of the same points.
+    Pn, n, nrm = _noisy_plane(sigma=0.006)
+    pts = {"voxel_size": 0.02, "weighting": "gaussian", "gaussian_width": 0.02}
+    X = _tilted_plane()[0][::3]
+    prior = ImplicitMap(_cfg({"residual": False}, points=pts))
+    prior.integrate_frame(Pn, np.eye(4), train=False, normals=nrm)
+    size = {}
+    for lam in (0.0, 5.0):
+        m = ImplicitMap(
+            _cfg(points=pts, training={"residual_weight": lam, "sigma": 0.02, "max_iters": 60})
+        )
+        m.integrate_frame(Pn, np.eye(4), train=False, normals=nrm)
+        m.train(60)
+        size[lam] = float(np.median(np.abs(m.sdf(X) - prior.sdf(X))))
+    assert size[0.0] > 2e-4  # it learned something
+    assert size[5.0] < 0.5 * size[0.0]
+    with pytest.raises(ConfigError, match="residual_weight"):
+        MapperConfig.from_dict({"training": {"residual_weight": -1.0}})

@@ -145,6 +145,16 @@ def test_yaml_preset_selects_learned_tracking(tmp_path):
     assert cfg.track_sdf == "implicit" and cfg.track_max_depth == 3.0
     assert cfg.mapper.decoder.geometric_prior and cfg.mapper.seed == 5
     assert load_slam_config(None).track_sdf == "points"  # the default is unchanged
+    # a nested mapping changes only the keys it names, at every depth: the preset's decoder
+    # (geometric prior, normal gate) and points (Gaussian weights) survive one changed key
+    f.write_text(
+        "preset: learned_tracking\n"
+        "mapper: {decoder: {residual: false}, points: {voxel_size: 0.02}}\n"
+    )
+    cfg = load_slam_config(f)
+    d, pts = cfg.mapper.decoder, cfg.mapper.points
+    assert not d.residual and d.geometric_prior and d.prior_normal_gate_deg == 60.0
+    assert pts.voxel_size == 0.02 and pts.weighting == "gaussian"
     f.write_text("preset: nope\n")
     with pytest.raises(ConfigError, match="preset"):
         load_slam_config(f)

@@ -162,6 +162,12 @@ class DecoderConfig(Config):
     # MLS surface n(x) . (x - q(x)): a neighbour's normal error no longer acts over the lever
     # arm from its plane point to the query (docs/mapping.md)
     prior_normal: Literal["own", "blended"] = "own"
+    # gradient of the prior: "full" differentiates through the blend weights too; "planes"
+    # holds the weights fixed (the gradient is the weighted mean of the neighbours' normals,
+    # the linearisation of IMLS-SLAM). On noisy depth the neighbours' plane distances differ
+    # by the noise, and d w_k / d p times those differences (~ |p - p_k| / width^2 x noise)
+    # puts a tangential gradient of the order of the normal itself into every residual.
+    prior_grad: Literal["full", "planes"] = "full"
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -172,6 +178,12 @@ class DecoderConfig(Config):
             n,
             "prior_normal_gate_deg",
             "must be in (0, 180]",
+        )
+        require(
+            self.prior_grad == "full" or self.decoding == "interpolated",
+            n,
+            "prior_grad",
+            "'planes' needs decoding 'interpolated'",
         )
         require(
             self.residual or self.geometric_prior,
@@ -207,13 +219,22 @@ class TrainingConfig(Config):
     # the average parameter importance rather than tied to the loss scale.
     ewc_normalize: bool = True
     max_pending: int = 20_000  # samples kept between training calls (uniform subset)
+    # With the decoder's geometric prior: weight of a Gaussian prior on the learned residual,
+    # ``residual_weight * mean((residual / sigma)^2)`` beside the BCE. 0: off.
+    residual_weight: float = 0.0
 
     def validate(self) -> None:
         n = type(self).__name__
         for f in ("lr", "feature_lr", "sigma"):
             v = getattr(self, f)
             require(_finite(v) and v > 0, n, f, f"must be > 0, got {v}")
-        for f in ("bce_weight", "eikonal_weight", "ewc_weight", "loss_threshold"):
+        for f in (
+            "bce_weight",
+            "eikonal_weight",
+            "ewc_weight",
+            "loss_threshold",
+            "residual_weight",
+        ):
             v = getattr(self, f)
             require(_finite(v) and v >= 0, n, f, f"must be >= 0, got {v}")
         require(self.batch_size >= 1, n, "batch_size", "must be >= 1")

@@ -381,6 +381,8 @@ class ImplicitMap:
         new_ids = torch.nonzero(~old).squeeze(1)
         old_ids = torch.nonzero(old).squeeze(1)
         use_ewc = tc.use_ewc and self.ewc.active and tc.ewc_weight > 0
+        dc = self.decoder.cfg
+        shrink = tc.residual_weight > 0 and dc.geometric_prior and dc.decoding == "interpolated"
         losses: list[float] = []
         converged = False
         it = 0
@@ -416,12 +418,13 @@ class ImplicitMap:
                 x = x.clone()
                 xe = x[:ne].requires_grad_(True)
                 x = torch.cat([xe, x[ne:]])
-            pred = self.decoder(
-                *self._decoder_inputs(
-                    x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
-                )
+            inp = self._decoder_inputs(
+                x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
             )
+            pred = self.decoder(*inp)
             loss = tc.bce_weight * bce_sdf_loss(pred, S[bi], tc.sigma)
+            if shrink:  # Gaussian prior on the learned residual: zero unless the labels agree
+                loss = loss + tc.residual_weight * ((pred - inp[4]) / tc.sigma).pow(2).mean()
             if ne:
                 (g,) = torch.autograd.grad(pred[:ne].sum(), xe, create_graph=True)
                 loss = loss + tc.eikonal_weight * eikonal_loss(g)
@@ -527,7 +530,7 @@ class ImplicitMap:
                 cos_gate = math.cos(math.radians(dc.prior_normal_gate_deg))
                 near = (nb_n * nb_n[:, :1]).sum(-1) >= cos_gate  # column 0: the nearest
                 has = has & (near | ~has[:, :1])
-            wh = w * has
+            wh = (w.detach() if dc.prior_grad == "planes" else w) * has
             nrm = nb_n
             if dc.prior_normal == "blended":
                 nb_ = (wh[..., None] * nb_n).sum(1, keepdim=True)
@@ -539,7 +542,8 @@ class ImplicitMap:
             f = (w[..., None] * nb_feat).sum(1)
             c = (w[..., None] * nb_col).sum(1)
             ctr = (w[..., None] * nb_pos).sum(1)
-            return f, c, self._position_input(x, ctr), torch.ones_like(w[:, 0]), (w * prior).sum(1)
+            wp = w.detach() if dc.prior_grad == "planes" else w
+            return f, c, self._position_input(x, ctr), torch.ones_like(w[:, 0]), (wp * prior).sum(1)
         if dc.position_input == "relative":
             pos = (x[:, None, :] - nb_pos) / self.cfg.points.search_radius
         else:

@@ -28,6 +28,17 @@ from simn_sim.tracking.registration import RegistrationConfig
 from simn_sim.tracking.topomap import LoopClosureConfig
 
 
+def _merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` applied; a nested mapping changes only the keys it names, at
+    every depth (``mapper: {decoder: {residual: false}}`` keeps the preset's other decoder
+    settings)."""
+    out = dict(base)
+    for k, v in changes.items():
+        b = out.get(k)
+        out[k] = _merge(b, v) if isinstance(v, dict) and isinstance(b, dict) else v
+    return out
+
+
 def tracking_mapper_config() -> MapperConfig:
     """The front-end's learned map: :class:`MapperConfig` defaults plus the decoder's geometric
     prior (each neural point's mean surface plane; the MLP learns a residual on it), Gaussian
@@ -276,9 +287,7 @@ class SlamConfig(Config):
         corridor (docs/slam.md, "Learned map for tracking")."""
         d = cls().to_dict()
         d.update(track_sdf="implicit", mapper=tracking_mapper_config().to_dict())
-        for k, v in changes.items():
-            d[k] = {**d[k], **v} if isinstance(v, dict) and isinstance(d.get(k), dict) else v
-        return cls.from_dict(d)
+        return cls.from_dict(_merge(d, changes))
 
     @classmethod
     def for_agent(cls, **changes: Any) -> SlamConfig:
@@ -306,9 +315,7 @@ class SlamConfig(Config):
             mapper={**d["mapper"], "training": tr.to_dict()},
             classifier=cl.to_dict(),
         )
-        for k, v in changes.items():  # a nested mapping changes only the keys it names
-            d[k] = {**d[k], **v} if isinstance(v, dict) and isinstance(d.get(k), dict) else v
-        return cls.from_dict(d)
+        return cls.from_dict(_merge(d, changes))
 
 
 def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
