@@ -521,6 +521,8 @@ class ImplicitMap:
             w = gaussian_weights(x, nb_pos, nb_valid, pc.gaussian_width)  # (Q, k)
         else:
             w = idw_weights(x, nb_pos, nb_valid, power)
+        # the prior's blend weights; "planes" holds them fixed in the gradient (DecoderConfig)
+        wp = w.detach() if dc.prior_grad == "planes" else w
         prior = torch.zeros_like(w)
         if dc.geometric_prior:
             # point-to-plane distance to each neighbour's mean surface plane; neighbours
@@ -530,7 +532,7 @@ class ImplicitMap:
                 cos_gate = math.cos(math.radians(dc.prior_normal_gate_deg))
                 near = (nb_n * nb_n[:, :1]).sum(-1) >= cos_gate  # column 0: the nearest
                 has = has & (near | ~has[:, :1])
-            wh = (w.detach() if dc.prior_grad == "planes" else w) * has
+            wh = wp * has
             nrm = nb_n
             if dc.prior_normal == "blended":
                 nb_ = (wh[..., None] * nb_n).sum(1, keepdim=True)
@@ -542,7 +544,6 @@ class ImplicitMap:
             f = (w[..., None] * nb_feat).sum(1)
             c = (w[..., None] * nb_col).sum(1)
             ctr = (w[..., None] * nb_pos).sum(1)
-            wp = w.detach() if dc.prior_grad == "planes" else w
             return f, c, self._position_input(x, ctr), torch.ones_like(w[:, 0]), (wp * prior).sum(1)
         if dc.position_input == "relative":
             pos = (x[:, None, :] - nb_pos) / self.cfg.points.search_radius
