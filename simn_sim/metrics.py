@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from simn_sim.geometry.paths import path_length
+
 __all__ = ["EpisodeMetrics", "path_length", "soft_spl", "spl", "success"]
 
 
@@ -98,22 +100,6 @@ def soft_spl(dist_to_goal_final: float, geodesic_start: float, path_length: floa
     else:
         soft = min(1.0, max(0.0, 1.0 - d_t / d_0))
     return soft * _efficiency(d_0, p)
-
-
-def path_length(xy_trajectory: np.ndarray) -> float:
-    """Length (metres) of a polyline: sum of segment lengths.
-
-    Args:
-        xy_trajectory: (T, D) positions (D = 2 for world x-y, 3 also accepted); T < 2 gives 0.
-    """
-    xy = np.asarray(xy_trajectory, dtype=np.float64)
-    if xy.ndim != 2 or xy.shape[1] not in (2, 3):
-        raise ValueError(f"xy_trajectory must have shape (T, 2) or (T, 3), got {xy.shape}")
-    if not np.all(np.isfinite(xy)):
-        raise ValueError("xy_trajectory must be finite (found NaN or inf)")
-    if len(xy) < 2:
-        return 0.0
-    return float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
 
 
 def _point(xy: Any, name: str) -> np.ndarray:

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
 __all__ = ["GoalField"]
 
+
 @dataclass
 class _Best:
     value: float

@@ -22,6 +22,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from simn_sim.config import Config, require
+from simn_sim.geometry.paths import segment_lengths
 from simn_sim.planning.collision import CollisionChecker
 
 Status = Literal["follow", "turn", "reached", "blocked", "stale"]
@@ -114,7 +115,7 @@ class PathFollower:
         if len(p) == 1:
             p = np.repeat(p, 2, axis=0)
         self.path = p
-        seg = np.hypot(*np.diff(p, axis=0).T)
+        seg = segment_lengths(p)
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
         self._seg = 0
 

@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from simn_sim.geometry.paths import path_length, segment_lengths
 from simn_sim.planning.collision import CollisionChecker
 
-
-def path_length(path: np.ndarray) -> float:
-    """Length (m) of an (M, 2) polyline."""
-    p = np.asarray(path, dtype=np.float64).reshape(-1, 2)
-    return float(np.hypot(*np.diff(p, axis=0).T).sum()) if len(p) > 1 else 0.0
+__all__ = [
+    "densify",
+    "greedy_shortcut",
+    "path_length",
+    "push_from_obstacles",
+    "random_shortcut",
+    "shortcut_path",
+]
 
 
 def greedy_shortcut(path: np.ndarray, checker: CollisionChecker) -> np.ndarray:
@@ -46,7 +50,7 @@ def random_shortcut(
     for _ in range(iterations):
         if len(p) < 3:
             break
-        seg = np.hypot(*np.diff(p, axis=0).T)
+        seg = segment_lengths(p)
         cum = np.concatenate([[0.0], np.cumsum(seg)])
         total = cum[-1]
         if total <= 0:
@@ -64,7 +68,7 @@ def random_shortcut(
         if checker.segment_free(q0, q1):
             p = np.concatenate([p[: i0 + 1], q0[None], q1[None], p[i1 + 1 :]])
     # drop duplicate consecutive points
-    keep = np.concatenate([[True], np.hypot(*np.diff(p, axis=0).T) > 1e-9])
+    keep = np.concatenate([[True], segment_lengths(p) > 1e-9])
     return p[keep]
 
 
