@@ -123,7 +123,7 @@ def test_local_batch_error_record_outputs_and_resume(tmp_path: Path) -> None:
 
     # resume: finished episodes are skipped, the errored one runs again (and errors again)
     before = {json.loads(ln)["episode_id"]: ln for ln in _lines(out / "episodes.jsonl")}
-    cfg.workers = 0
+    cfg = cfg.replace(workers=0)  # the config is frozen
     res2 = run_batch(cfg)
     assert sorted(res2.skipped) == ["reg-L2-000", "reg-ref-000"]
     assert [r["episode_id"] for r in res2.records] == ["bad-start"]
@@ -235,7 +235,7 @@ def _flaky_task(task: Any) -> Any:
     process (``die-once`` only on its first attempt, remembered by a marker file)."""
     import os
 
-    from simn_sim.experiments.batch import EpisodeResult, _identity_record
+    from simn_sim.experiments.batch_worker import EpisodeResult, identity_record
 
     eid = task.episode["episode_id"]
     marker = Path(task.rerun_path) if task.rerun_path else None
@@ -243,13 +243,14 @@ def _flaky_task(task: Any) -> Any:
         if marker is not None:
             marker.touch()
         os._exit(3)
-    rec = _identity_record(task, "")
+    rec = identity_record(task, "")
     rec.update(error=None, termination="success", success=True)
     return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
 
 
 def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
-    from simn_sim.experiments.batch import EpisodeTask, _run_local
+    from simn_sim.experiments.batch_local import run_local
+    from simn_sim.experiments.batch_worker import EpisodeTask
 
     def task(eid: str) -> EpisodeTask:
         ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
@@ -257,7 +258,7 @@ def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
 
     tasks = [task(e) for e in ("a", "die-once", "b", "die-always", "c")]
     got: dict[str, list[dict[str, Any]]] = {}
-    _run_local(
+    run_local(
         tasks,
         2,
         lambda t, r: got.setdefault(r.record["episode_id"], []).append(r.record),
@@ -287,3 +288,22 @@ def test_same_episode_id_with_another_spec_is_refused(tmp_path: Path) -> None:
     with pytest.raises(BatchError, match="different spec"):
         run_batch(cfg)
     assert "error" in (out / "episodes.jsonl").read_text()  # nothing changed
+
+
+def test_batch_config_is_frozen_and_checked(tmp_path: Path) -> None:
+    import dataclasses
+
+    cfg = BatchConfig(out=str(tmp_path), agent="oracle", n_episodes=2, env_config={"width": 64})
+    assert cfg.out == tmp_path and isinstance(cfg.out, Path)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.workers = 3  # type: ignore[misc]
+    cfg2 = cfg.replace(workers=0)
+    assert cfg2.workers == 0 and cfg.workers == 1 and cfg2.env_config == {"width": 64}
+    with pytest.raises(BatchError, match="exactly one"):
+        BatchConfig(out=tmp_path, agent="oracle")
+    with pytest.raises(BatchError, match="workers"):
+        BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, workers=-1)
+    with pytest.raises(BatchError, match="'seed'"):  # a type error names the field
+        BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, seed="3")  # type: ignore[arg-type]
+    with pytest.raises(BatchError, match="backend"):
+        BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, backend="slurm")

@@ -1,4 +1,4 @@
-"""The agent interface and registry.
+"""The agent interface and registry (no agent is imported here: see :mod:`simn_sim.agents`).
 
 Every agent implements ``reset(obs, info)`` and ``act(obs, info=None) -> action``. ``info`` is
 passed to ``act`` only so that the oracle can read the true pose; every other agent must ignore
@@ -31,23 +31,12 @@ _REGISTRY: dict[str, Callable[..., Agent]] = {}
 
 
 def register_agent(name: str, factory: Callable[..., Agent]) -> None:
+    """Register ``factory(env, config) -> Agent`` under ``name`` (an agent module does this
+    when it is imported; a later registration of the same name replaces the earlier one)."""
     _REGISTRY[name] = factory
 
 
-def agent_names() -> list[str]:
-    _load_builtin()
-    return sorted(_REGISTRY)
-
-
-def make_agent(name: str, env: Any, config: dict[str, Any] | None = None) -> Agent:
-    """Create the agent ``name`` for ``env`` (the unwrapped env gives bounds and, for the
-    oracle only, the true map). Unknown names raise ``ValueError`` listing the valid ones."""
-    _load_builtin()
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown agent {name!r}; valid agents: {sorted(_REGISTRY)}")
-    return _REGISTRY[name](env, config or {})
-
-
-def _load_builtin() -> None:
-    """Import the built-in agent modules (each registers itself; imports are idempotent)."""
-    from simn_sim.agents import oracle, simn  # noqa: F401
+def registered() -> dict[str, Callable[..., Agent]]:
+    """The agents registered so far, by name (a copy). Use :func:`simn_sim.agents.make_agent`
+    and :func:`simn_sim.agents.agent_names`, which import the built-in agents first."""
+    return dict(_REGISTRY)

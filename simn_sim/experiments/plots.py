@@ -18,6 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from simn_sim.experiments.batch_files import (
+    EPISODE_SET_FILE,
+    RECORDS_FILE,
+    read_records_lenient,
+    trajectory_file,
+)
+
 __all__ = ["layout_tag", "plot_success_spl", "plot_trajectories"]
 
 #: Floor-plan band: everything between 3 cm and 95 cm above the floor blocks the robot.
@@ -40,10 +47,6 @@ def layout_tag(layout_seed: int | None) -> str:
     return "ref" if layout_seed is None else f"L{int(layout_seed)}"
 
 
-def _safe(s: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_.=" else "_" for c in s)
-
-
 def plot_trajectories(
     out: str | Path, records: Sequence[dict[str, Any]] | None = None
 ) -> list[Path]:
@@ -57,11 +60,9 @@ def plot_trajectories(
     plt = _plt()
     out = Path(out)
     if records is None:
-        from simn_sim.experiments.batch import RECORDS_FILE, read_records_lenient
-
         records, _ = read_records_lenient(out / RECORDS_FILE)
     specs: dict[str, dict[str, Any]] = {}
-    set_file = out / "episode_set.json"
+    set_file = out / EPISODE_SET_FILE
     if set_file.is_file():
         specs = {e["episode_id"]: e for e in json.loads(set_file.read_text())["episodes"]}
     agents = list(dict.fromkeys(str(r["agent"]) for r in records))
@@ -86,7 +87,7 @@ def plot_trajectories(
             if drawn.get(agent, 0) >= MAX_EPISODES_PER_PLOT:
                 continue
             c = colours(agents.index(agent) % 10)
-            f = out / "trajectories" / _safe(agent) / f"{_safe(str(r['episode_id']))}.npy"
+            f = trajectory_file(out, agent, str(r["episode_id"]))
             spec = specs.get(r["episode_id"])
             ok = bool(r.get("success")) and r.get("error") is None
             label = agent if agent not in drawn else None
