@@ -147,10 +147,13 @@ def fit_floor_plane(
     return n, float(n @ cen), int(len(inl))
 
 
-def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:
-    """(N, 3) unit normals by local PCA over ``k`` nearest neighbours (sign arbitrary).
+def estimate_normals(points: np.ndarray, k: int = 12, towards_origin: bool = False) -> np.ndarray:
+    """(N, 3) float64 unit normals by local PCA over ``k`` nearest neighbours: the one home of
+    PCA normals.
 
-    Non-finite points get NaN normals.
+    The sign is arbitrary, or with ``towards_origin`` flipped to face the origin (the camera,
+    for camera-frame points). Non-finite points, and all points when fewer than 3 are finite,
+    get NaN normals.
     """
     P = _check_points(points).astype(np.float64)
     out = np.full(P.shape, np.nan)
@@ -164,6 +167,8 @@ def estimate_normals(points: np.ndarray, k: int = 12) -> np.ndarray:
     C = np.einsum("nki,nkj->nij", X, X)
     _, V = np.linalg.eigh(C)
     out[fin] = V[:, :, 0]
+    if towards_origin:
+        out *= np.where((out * P).sum(1) > 0, -1.0, 1.0)[:, None]
     return out
 
 

@@ -12,9 +12,6 @@ no SDF: NaN and ``valid = False``).
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
-import math
 import time
 from pathlib import Path
 
@@ -24,113 +21,43 @@ import torch
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.mapping.config import MapperConfig
 from simn_sim.mapping.decoder import Decoder
+from simn_sim.mapping.decoding import decoder_inputs
 from simn_sim.mapping.losses import EWC, bce_sdf_loss, diagonal_fisher, eikonal_loss
-from simn_sim.mapping.neural_points import (
-    FeaturePoints,
-    NeuralPointMap,
-    gaussian_weights,
-    idw_interpolate,
-    idw_weights,
+from simn_sim.mapping.neural_points import FeaturePoints, NeuralPointMap
+from simn_sim.mapping.perception import (
+    EmptyFrameError,
+    estimate_normals,
+    rgbd_to_points,
+    voxel_downsample,
 )
-from simn_sim.mapping.perception import EmptyFrameError, rgbd_to_points, voxel_downsample
+from simn_sim.mapping.persistence import MAP_FORMAT, MAP_VERSION, MapFileError, load_map, map_state
 from simn_sim.mapping.replay import ReplayPool
+from simn_sim.mapping.results import (
+    FrameResult,
+    SdfQuery,
+    TrainResult,
+    check_colors,
+    check_labels,
+    flush_denormals,
+)
+from simn_sim.mapping.results import as_float_points as _as_float_points
 from simn_sim.mapping.sampling import sample_rays
+from simn_sim.mapping.tracking_sdf import TrackingSdf
+from simn_sim.tracking.lie import check_pose
 
-MAP_FORMAT = "simn-sim/implicit-map"
-MAP_VERSION = 1
-
-
-class MapFileError(ValueError):
-    """A map file is missing, corrupt, or not a simn-sim implicit map."""
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainResult:
-    """Outcome of one call of the adaptive training loop."""
-
-    iterations: int
-    converged: bool  # stopped on the windowed loss change (not the cap)
-    final_loss: float  # mean total loss over the last window
-    n_samples: int  # valid samples used (new + replayed)
-    n_replayed: int
-    seconds: float
-
-
-@dataclasses.dataclass(frozen=True)
-class FrameResult:
-    """Outcome of integrating one frame."""
-
-    frame_index: int
-    n_points: int  # after dropping non-finite points and down-sampling
-    n_dropped: int  # non-finite input points
-    n_new_neural_points: int
-    n_samples: int
-    train: TrainResult | None  # None when this frame did not trigger training
-
-
-@dataclasses.dataclass
-class SdfQuery:
-    """sdf (N,), grad (N, 3) or None, valid (N,) bool; numpy or torch like the input."""
-
-    sdf: np.ndarray | torch.Tensor
-    grad: np.ndarray | torch.Tensor | None
-    valid: np.ndarray | torch.Tensor
-
-
-@contextlib.contextmanager
-def flush_denormals():
-    """Flush denormal floats to zero while training.
-
-    Adam's second moments of tiny gradients underflow to denormals, which make CPU arithmetic
-    ~10x slower. The flag is process-wide and breaks other code (scipy's cKDTree segfaults on
-    planar data with it), so it is set only inside the training loop and cleared afterwards.
-    """
-    torch.set_flush_denormal(True)
-    try:
-        yield
-    finally:
-        torch.set_flush_denormal(False)
-
-
-def check_pose(T: np.ndarray, name: str = "T_map_cam") -> np.ndarray:
-    """Validate a 4x4 rigid transform; returns it as float64."""
-    if isinstance(T, torch.Tensor):
-        T = T.detach().cpu().numpy()
-    if not isinstance(T, np.ndarray):
-        raise TypeError(f"{name} must be a 4x4 numpy array, got {type(T).__name__}")
-    if T.shape != (4, 4):
-        raise ValueError(f"{name} must have shape (4, 4), got {T.shape}")
-    if not np.issubdtype(T.dtype, np.floating):
-        raise TypeError(f"{name} must be a float array, got dtype {T.dtype}")
-    T = T.astype(np.float64)
-    if not np.isfinite(T).all():
-        raise ValueError(f"{name} contains NaN or inf")
-    R = T[:3, :3]
-    if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-6) or not np.allclose(
-        R @ R.T, np.eye(3), atol=1e-4
-    ):
-        raise ValueError(f"{name} is not a rigid transform (bottom row or rotation part invalid)")
-    if np.linalg.det(R) < 0:
-        raise ValueError(f"{name} has a reflection (det R < 0)")
-    return T
-
-
-def _as_float_points(points: np.ndarray | torch.Tensor, name: str = "points") -> torch.Tensor:
-    if isinstance(points, np.ndarray):
-        if not np.issubdtype(points.dtype, np.floating):
-            raise TypeError(f"{name} must be float32 or float64, got dtype {points.dtype}")
-        t = torch.from_numpy(np.ascontiguousarray(points))
-    elif isinstance(points, torch.Tensor):
-        if not points.is_floating_point():
-            raise TypeError(f"{name} must be a floating-point tensor, got {points.dtype}")
-        t = points
-    else:
-        raise TypeError(
-            f"{name} must be a numpy array or torch tensor, got {type(points).__name__}"
-        )
-    if t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {tuple(t.shape)}")
-    return t
+__all__ = [
+    "MAP_FORMAT",
+    "MAP_VERSION",
+    "FrameResult",
+    "ImplicitMap",
+    "MapFileError",
+    "SdfQuery",
+    "TrackingSdf",
+    "TrainResult",
+    "check_pose",
+    "estimate_normals",
+    "flush_denormals",
+]
 
 
 class ImplicitMap:
@@ -198,13 +125,13 @@ class ImplicitMap:
         ``train``: force (True) or skip (False) training; by default every ``train_every``-th
         frame trains. Raises :class:`EmptyFrameError` for a frame without a finite point.
         """
-        T = check_pose(T_map_cam)
+        T = check_pose(T_map_cam, "T_map_cam", tol=1e-4)
         pts = _as_float_points(points_cam, "points_cam").detach().cpu().numpy().astype(np.float32)
         n_in = pts.shape[0]
         if n_in == 0:
             raise EmptyFrameError("integrate_frame: the frame has no points")
-        cols = self._check_colors(colors, n_in)
-        labs = self._check_labels(labels, n_in)
+        cols = check_colors(colors, n_in)
+        labs = check_labels(labels, n_in)
         finite = np.isfinite(pts).all(axis=1)
         n_dropped = int(n_in - finite.sum())
         if n_dropped == n_in:
@@ -278,32 +205,6 @@ class ImplicitMap:
         """Back-project (``cfg.perception``) and :meth:`integrate_frame`."""
         pc = rgbd_to_points(depth, intr, rgb, labels, self.cfg.perception)
         return self.integrate_frame(pc.points, T_map_cam, pc.colors, pc.labels, train=train)
-
-    def _check_colors(self, colors, n: int) -> np.ndarray:
-        if colors is None:
-            return np.full((n, 3), 0.5, np.float32)
-        c = colors.detach().cpu().numpy() if isinstance(colors, torch.Tensor) else colors
-        if not isinstance(c, np.ndarray) or c.shape != (n, 3):
-            raise ValueError(
-                f"colors must be ({n}, 3), got {getattr(c, 'shape', type(c).__name__)}"
-            )
-        if c.dtype == np.uint8:
-            return c.astype(np.float32) / 255.0
-        if not np.issubdtype(c.dtype, np.floating):
-            raise TypeError(f"colors must be float in [0, 1] or uint8, got dtype {c.dtype}")
-        return np.clip(np.nan_to_num(c.astype(np.float32), nan=0.5), 0.0, 1.0)
-
-    def _check_labels(self, labels, n: int) -> np.ndarray | None:
-        if labels is None:
-            return None
-        lab = labels.detach().cpu().numpy() if isinstance(labels, torch.Tensor) else labels
-        if not isinstance(lab, np.ndarray) or lab.shape != (n,):
-            raise ValueError(
-                f"labels must be ({n},), got {getattr(lab, 'shape', type(lab).__name__)}"
-            )
-        if not np.issubdtype(lab.dtype, np.integer):
-            raise TypeError(f"labels must be integers, got dtype {lab.dtype}")
-        return lab.astype(np.int16)
 
     def _add_pending(self, x: torch.Tensor, s: torch.Tensor, k: torch.Tensor) -> None:
         self._pending.append((x, s, k))
@@ -387,29 +288,15 @@ class ImplicitMap:
         converged = False
         it = 0
         B = tc.batch_size
+
+        def draw(ids: torch.Tensor, k: int) -> torch.Tensor:  # k of ids, with replacement
+            i = torch.randint(ids.numel(), (k,), generator=self.generator, device=self.device)
+            return ids[i]
+
         for it in range(1, cap + 1):  # noqa: B007
             if old_ids.numel() and new_ids.numel():
                 nb_old = int(round(B * tc.replay_ratio))
-                bi = torch.cat(
-                    [
-                        new_ids[
-                            torch.randint(
-                                new_ids.numel(),
-                                (B - nb_old,),
-                                generator=self.generator,
-                                device=self.device,
-                            )
-                        ],
-                        old_ids[
-                            torch.randint(
-                                old_ids.numel(),
-                                (nb_old,),
-                                generator=self.generator,
-                                device=self.device,
-                            )
-                        ],
-                    ]
-                )
+                bi = torch.cat([draw(new_ids, B - nb_old), draw(old_ids, nb_old)])
             else:
                 bi = torch.randint(X.shape[0], (B,), generator=self.generator, device=self.device)
             x = X[bi]
@@ -484,12 +371,6 @@ class ImplicitMap:
         self._recent = ReplayPool(self.cfg.training.fisher_samples, self.device)
 
     # ------------------------------------------------------------------ decoding
-    def _position_input(self, x: torch.Tensor, centroid: torch.Tensor) -> torch.Tensor:
-        mode = self.decoder.cfg.position_input
-        if mode == "relative":
-            return (x - centroid) / self.cfg.points.search_radius
-        return x  # "absolute" (and ignored by the decoder for "none")
-
     def _gather(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Neighbour tables of (Q, k) global indices (-1 = none): positions, validity,
         features, colours, plane points and plane normals."""
@@ -498,58 +379,10 @@ class ImplicitMap:
         q, n = p.planes()
         return p.positions[ic], idx >= 0, p.features[ic], p.colors[ic], q[ic], n[ic]
 
-    def _decoder_inputs(
-        self,
-        x: torch.Tensor,
-        nb_pos: torch.Tensor,
-        nb_valid: torch.Tensor,
-        nb_feat: torch.Tensor,
-        nb_col: torch.Tensor,
-        nb_q: torch.Tensor,
-        nb_n: torch.Tensor,
-    ) -> tuple[torch.Tensor, ...]:
-        """The decoder's inputs at map-frame points ``x`` (Q, 3) from their k neighbours'
-        tables (Q, k, ...): ``(f, c, pos)`` for the interpolated decoding without the prior
-        (the paper's), else ``(f, c, pos, weights, prior)`` (see :meth:`Decoder.forward`)."""
-        dc = self.decoder.cfg
-        power = self.cfg.points.idw_power
-        if dc.decoding == "interpolated" and not dc.geometric_prior:
-            f, c, ctr = idw_interpolate(x, nb_pos, nb_valid, nb_feat, nb_col, power)
-            return f, c, self._position_input(x, ctr)
-        pc = self.cfg.points
-        if pc.weighting == "gaussian":
-            w = gaussian_weights(x, nb_pos, nb_valid, pc.gaussian_width)  # (Q, k)
-        else:
-            w = idw_weights(x, nb_pos, nb_valid, power)
-        # the prior's blend weights; "planes" holds them fixed in the gradient (DecoderConfig)
-        wp = w.detach() if dc.prior_grad == "planes" else w
-        prior = torch.zeros_like(w)
-        if dc.geometric_prior:
-            # point-to-plane distance to each neighbour's mean surface plane; neighbours
-            # without a normal take the blend of those with one
-            has = (nb_n.abs().sum(-1) > 0) & nb_valid
-            if dc.prior_normal_gate_deg < 180:
-                cos_gate = math.cos(math.radians(dc.prior_normal_gate_deg))
-                near = (nb_n * nb_n[:, :1]).sum(-1) >= cos_gate  # column 0: the nearest
-                has = has & (near | ~has[:, :1])
-            wh = wp * has
-            nrm = nb_n
-            if dc.prior_normal == "blended":
-                nb_ = (wh[..., None] * nb_n).sum(1, keepdim=True)
-                nrm = nb_ / nb_.norm(dim=-1, keepdim=True).clamp(min=1e-9)
-            d = ((x[:, None, :] - nb_q) * nrm).sum(-1)
-            blend = (wh * d).sum(1, keepdim=True) / wh.sum(1, keepdim=True).clamp(min=1e-12)
-            prior = torch.where(has, d, blend)
-        if dc.decoding == "interpolated":
-            f = (w[..., None] * nb_feat).sum(1)
-            c = (w[..., None] * nb_col).sum(1)
-            ctr = (w[..., None] * nb_pos).sum(1)
-            return f, c, self._position_input(x, ctr), torch.ones_like(w[:, 0]), (wp * prior).sum(1)
-        if dc.position_input == "relative":
-            pos = (x[:, None, :] - nb_pos) / self.cfg.points.search_radius
-        else:
-            pos = x[:, None, :].expand_as(nb_pos)
-        return nb_feat, nb_col, pos, w, prior
+    def _decoder_inputs(self, x: torch.Tensor, *tables: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """:func:`~simn_sim.mapping.decoding.decoder_inputs` with this map's configs; ``tables``
+        as returned by :meth:`_gather`."""
+        return decoder_inputs(self.decoder.cfg, self.cfg.points, x, *tables)
 
     # ------------------------------------------------------------------ queries
     def query(
@@ -650,25 +483,7 @@ class ImplicitMap:
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
-        p = self.points
-        return {
-            "format": MAP_FORMAT,
-            "version": MAP_VERSION,
-            "config": self.cfg.to_dict(),
-            "decoder": {k: v.detach().cpu() for k, v in self.decoder.state_dict().items()},
-            "points": {
-                "positions": p.positions.cpu(),
-                "features": p.features.cpu(),
-                "colors": p.colors.cpu(),
-                "labels": p.labels.cpu(),
-                "plane_sum": p.plane_sum.cpu(),
-                "normal_sum": p.normal_sum.cpu(),
-                "plane_count": p.plane_count.cpu(),
-            },
-            "ewc": self.ewc.state_dict(),
-            "replay": self.replay.state_dict(),
-            "frame_count": self.frame_count,
-        }
+        return map_state(self)
 
     def save(self, path: str | Path) -> Path:
         """Write the map (config, decoder, points, EWC and replay state) to ``path``."""
@@ -681,121 +496,4 @@ class ImplicitMap:
     def load(cls, path: str | Path, device: str | None = None) -> ImplicitMap:
         """Read a map written by :meth:`save`. Raises :class:`MapFileError` when the file is
         missing, corrupt, or not a simn-sim implicit map."""
-        path = Path(path)
-        if not path.is_file():
-            raise MapFileError(f"{path}: no such map file")
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as e:  # noqa: BLE001 - any unpickling failure means a bad file
-            raise MapFileError(
-                f"{path}: not a readable simn-sim map file ({type(e).__name__}: {e})"
-            ) from e
-        if not isinstance(state, dict) or state.get("format") != MAP_FORMAT:
-            raise MapFileError(
-                f"{path}: not a simn-sim implicit map (missing format tag {MAP_FORMAT!r})"
-            )
-        if state.get("version") != MAP_VERSION:
-            raise MapFileError(
-                f"{path}: map format version {state.get('version')} is not supported"
-            )
-        try:
-            cfg = MapperConfig.from_dict(state["config"])
-            if device is not None:
-                cfg = cfg.replace(device=device)
-            m = cls(cfg)
-            m.decoder.load_state_dict(state["decoder"])
-            pts = state["points"]
-            planes = None
-            if "plane_sum" in pts:
-                planes = (pts["plane_sum"], pts["normal_sum"], pts["plane_count"])
-            m.points.set_state(
-                pts["positions"], pts["features"], pts["colors"], pts["labels"], planes
-            )
-            m.ewc.load_state_dict(state["ewc"])
-            if m.ewc.fisher is not None:
-                m.ewc.fisher = {k: v.to(m.device) for k, v in m.ewc.fisher.items()}
-                m.ewc.anchor = {k: v.to(m.device) for k, v in m.ewc.anchor.items()}
-            m.replay.load_state_dict(state["replay"])
-            m.frame_count = int(state["frame_count"])
-        except (KeyError, TypeError, ValueError, RuntimeError) as e:
-            raise MapFileError(f"{path}: corrupt simn-sim map ({type(e).__name__}: {e})") from e
-        return m
-
-
-class TrackingSdf:
-    """The map's SDF and gradient for registration, with the k-NN search reused.
-
-    LM evaluates the same points at poses a few millimetres apart; the k-NN search is ~70 %
-    of a query's cost (docs/mapping.md). Here the neighbour indices of the last search are
-    reused while the query has the same number of points, no neural point was added, and no
-    point moved more than ``reuse_distance`` (m) since that search; otherwise it searches
-    again. Values are always recomputed (training changes them, not the neighbour sets). With fixed neighbours the SDF is smooth in the pose (no jumps where the neighbour
-    set changes). ``searches`` counts the searches done.
-
-    ``max_distance``: a point further than this *along the surface* (the distance to a
-    neighbour's mean surface point minus its component along that neighbour's normal; the
-    full distance where the map has no normals) from every neighbour is invalid (NaN), instead
-    of ``search_radius``: beyond the observed surface the blended planes are extrapolated, and
-    such residuals pull a frame towards the map's edge (docs/slam.md).
-    """
-
-    def __init__(
-        self,
-        imap: ImplicitMap,
-        reuse_distance: float = 0.02,
-        max_distance: float | None = None,
-    ) -> None:
-        self.map = imap
-        self.reuse_distance = float(reuse_distance)
-        self.max_distance = None if max_distance is None else float(max_distance)
-        self._key: tuple | None = None
-        self._x: torch.Tensor | None = None
-        self._idx: torch.Tensor | None = None
-        self.searches = 0
-
-    def sdf_and_grad(self, points: np.ndarray | torch.Tensor):
-        """(N,) SDF and (N, 3) gradient at map-frame points (NaN where invalid)."""
-        m = self.map
-        x = _as_float_points(points).to(m.device, torch.float32)
-        key = (len(m.points), x.shape[0])  # indices stay valid while no point is added
-        stale = (
-            self._key != key
-            or self._x is None
-            or bool(((x - self._x) ** 2).sum(1).max() > self.reuse_distance**2)
-        )
-        if stale:
-            self._idx, _ = m.points.knn(x)
-            self._x, self._key = x.clone(), key
-            self.searches += 1
-        idx = self._idx
-        if self.max_distance is not None:
-            # coverage: the distance along the surface to the nearest neighbour's plane point
-            # (the offset along its normal is depth noise, not a lack of map)
-            q, nrm = m.points.planes()
-            ic = idx.clamp(min=0)
-            dv = x[:, None, :] - q[ic]
-            dt = dv - (dv * nrm[ic]).sum(-1, keepdim=True) * nrm[ic]
-            d2 = torch.where(idx >= 0, (dt**2).sum(-1), torch.full_like(dt[..., 0], float("inf")))
-            far = d2.min(1).values > self.max_distance**2
-            idx = torch.where(far[:, None], torch.full_like(idx, -1), idx)
-        q = m.query(points, with_grad=True, neighbors=idx)
-        return q.sdf, q.grad
-
-
-def estimate_normals(points: np.ndarray, k: int = 8) -> np.ndarray:
-    """(N, 3) unit normals of camera-frame points by PCA of their ``k`` nearest neighbours,
-    oriented towards the camera (origin); NaN where fewer than 3 points exist."""
-    n = len(points)
-    out = np.full((n, 3), np.nan, np.float32)
-    if n < 3:
-        return out
-    from scipy.spatial import cKDTree
-
-    P = points.astype(np.float64)
-    _, nb = cKDTree(P).query(P, k=min(k, n))
-    Q = P[nb] - P[nb].mean(1, keepdims=True)
-    C = np.einsum("nki,nkj->nij", Q, Q)
-    _, V = np.linalg.eigh(C)
-    nrm = V[:, :, 0]
-    nrm *= np.where((nrm * P).sum(1) > 0, -1.0, 1.0)[:, None]
-    return nrm.astype(np.float32)
+        return load_map(cls, path, device)

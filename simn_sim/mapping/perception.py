@@ -1,4 +1,5 @@
-"""Perception: RGB-D + intrinsics -> coloured points in the camera frame; voxel down-sampling."""
+"""Perception: RGB-D + intrinsics -> coloured points in the camera frame; voxel down-sampling;
+normals of camera-frame points."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import dataclasses
 import numpy as np
 
 from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.voxel import voxel_mean
 from simn_sim.mapping.config import PerceptionConfig
+from simn_sim.semantics import estimate_normals as semantic_normals
 
 
 class EmptyFrameError(ValueError):
@@ -114,6 +117,12 @@ def voxel_downsample(
 
     points: (N, 3) float. Returns (M, 3) float32 points (M <= N) and the matching attributes,
     in order of first occurrence, so the result is deterministic.
+
+    :func:`simn_sim.geometry.voxel.voxel_mean` does the grouping and averaging. The voxel of a
+    point is ``floor(points / voxel_size)`` in the points' own precision (float32 for camera
+    points, as this function always did; ``voxel_mean`` divides in float64, which puts a
+    float32 point lying on a voxel boundary in the other voxel), so ``voxel_mean`` is given
+    the voxel centres as positions and the points themselves (and the colours) as attributes.
     """
     if voxel_size <= 0:
         raise ValueError(f"voxel_size must be > 0, got {voxel_size}")
@@ -122,26 +131,22 @@ def voxel_downsample(
         raise ValueError(f"points must be (N, 3), got {points.shape}")
     if points.shape[0] == 0:
         return points.astype(np.float32), colors, labels
-    keys = np.floor(points / voxel_size).astype(np.int64)
-    keys -= keys.min(axis=0)
-    dims = keys.max(axis=0) + 1
-    lin = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    _, first, inverse, counts = np.unique(
-        lin, return_index=True, return_inverse=True, return_counts=True
+    centres = (np.floor(points / voxel_size).astype(np.float64) + 0.5) * voxel_size
+    attrs = (
+        points
+        if colors is None
+        else np.concatenate(
+            [np.asarray(points, np.float64), np.asarray(colors, np.float64)], axis=1
+        )
     )
-    inverse = inverse.reshape(-1)
-    order = np.argsort(first, kind="stable")  # voxel ids in order of first occurrence
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    inv = rank[inverse]
-    m = order.size
-    cnt = counts[order].astype(np.float64)[:, None]
-
-    def mean(a: np.ndarray) -> np.ndarray:
-        out = np.stack([np.bincount(inv, a[:, j], minlength=m) for j in range(a.shape[1])], 1)
-        return (out / cnt).astype(np.float32)
-
-    pts = mean(points.astype(np.float64))
-    cols = None if colors is None else mean(np.asarray(colors, np.float64))
-    labs = None if labels is None else np.asarray(labels)[first[order]]
+    _, mean, labs = voxel_mean(centres, voxel_size, attrs, labels)
+    pts = np.ascontiguousarray(mean[:, :3])
+    cols = None if colors is None else np.ascontiguousarray(mean[:, 3:])
     return pts, cols, labs
+
+
+def estimate_normals(points: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N, 3) float32 unit normals of camera-frame points by PCA of their ``k`` nearest,
+    oriented towards the camera (origin); NaN where fewer than 3 points exist
+    (:func:`simn_sim.semantics.estimate_normals` with the mapper's defaults)."""
+    return semantic_normals(points, k, towards_origin=True).astype(np.float32)

@@ -11,6 +11,9 @@ import dataclasses
 import numpy as np
 
 from simn_sim.geometry.camera import Intrinsics
+from simn_sim.tracking.synthetic import look_at
+
+__all__ = ["AnalyticScene", "Box", "Sphere", "box_room_scene", "box_sdf", "look_at", "orbit_poses"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,22 +102,6 @@ def box_room_scene() -> AnalyticScene:
         ),
         spheres=(Sphere((-0.9, 0.7, 0.45), 0.3),),
     )
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """``T_world_cam`` of an OpenCV camera (z forward, y down) at ``eye`` looking at ``target``."""
-    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, np.array([1.0, 0.0, 0.0]))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def orbit_poses(

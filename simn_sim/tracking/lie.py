@@ -62,19 +62,26 @@ def constant_velocity_prior(
     return T_prev1 @ D
 
 
-def check_pose(T: np.ndarray, name: str = "T") -> np.ndarray:
-    """Validate a 4x4 rigid transform (finite, orthonormal rotation, det +1); return float64."""
+def check_pose(T: np.ndarray, name: str = "T", tol: float = 1e-5) -> np.ndarray:
+    """Validate a 4x4 rigid transform (finite, rotation block orthonormal with det +1 within
+    ``tol``, last row exactly ``[0, 0, 0, 1]`` to 1e-9); return it as float64.
+
+    The one pose check of the package. ``T``: anything array-like (a torch tensor is detached
+    and copied to the CPU). Raises ValueError naming ``name``.
+    """
+    if hasattr(T, "detach"):  # a torch tensor, without importing torch here
+        T = T.detach().cpu().numpy()
     T = np.asarray(T)
     if T.shape != (4, 4):
-        raise ValueError(f"{name} must be 4x4, got shape {T.shape}")
+        raise ValueError(f"{name} must be a 4x4 pose of shape (4, 4), got shape {T.shape}")
     if not np.issubdtype(T.dtype, np.floating) and not np.issubdtype(T.dtype, np.integer):
         raise ValueError(f"{name} must be numeric, got dtype {T.dtype}")
     T = T.astype(np.float64)
     if not np.isfinite(T).all():
         raise ValueError(f"{name} contains NaN or inf")
     R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-5 or abs(np.linalg.det(R) - 1.0) > 1e-5:
-        raise ValueError(f"{name} rotation block is not a rotation matrix")
+    if np.abs(R.T @ R - np.eye(3)).max() > tol or abs(np.linalg.det(R) - 1.0) > tol:
+        raise ValueError(f"{name} is not a rigid transform: its rotation block is not a rotation")
     if np.abs(T[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-9:
-        raise ValueError(f"{name} last row must be [0, 0, 0, 1]")
+        raise ValueError(f"{name} is not a rigid transform: its last row must be [0, 0, 0, 1]")
     return T

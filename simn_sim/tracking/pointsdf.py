@@ -26,21 +26,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from simn_sim.geometry.camera import Intrinsics, backproject
+from simn_sim.geometry.voxel import first_per_voxel as voxel_downsample
 from simn_sim.semantics import estimate_normals, normals_from_organized
 
-
-def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Indices of one point per occupied voxel (the first), for (N, 3) points."""
-    if voxel <= 0:
-        raise ValueError(f"voxel must be > 0, got {voxel}")
-    g = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64)
-    if len(g) == 0:
-        return np.zeros(0, np.int64)
-    g -= g.min(axis=0)
-    span = g.max(axis=0) + 1
-    keys = (g[:, 0] * span[1] + g[:, 1]) * span[2] + g[:, 2]  # exact while span^3 < 2^63
-    _, idx = np.unique(keys, return_index=True)
-    return np.sort(idx)
+__all__ = ["PointCloudSDF", "voxel_downsample"]  # voxel_downsample: first_per_voxel, re-exported
 
 
 class PointCloudSDF:
@@ -117,8 +106,7 @@ class PointCloudSDF:
             return cls(P[keep], N[keep], max_dist)
         P = Pc[valid].astype(np.float64)
         P = P[voxel_downsample(P, voxel)]
-        N = estimate_normals(P, k)
-        N *= np.where(np.sum(N * P, axis=1, keepdims=True) > 0, -1.0, 1.0)
+        N = estimate_normals(P, k, towards_origin=True)
         return cls(P, N, max_dist)
 
     def sdf_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

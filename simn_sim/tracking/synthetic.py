@@ -99,12 +99,18 @@ def plane_scene() -> AnalyticScene:
     return AnalyticScene(planes=((np.array([0.0, 0.0, 1.0]), 0.0),))
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
-    """``T_world_cam`` of an OpenCV camera (z forward, y down) at ``eye`` looking at ``target``."""
-    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float)
-    z = np.asarray(target, float) - np.asarray(eye, float)
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``T_world_cam`` of an OpenCV camera (z forward, y down) at ``eye`` looking at ``target``.
+
+    ``up``: world up (None: +z); when it is parallel to the view direction, +x stands in.
+    """
+    up = (0.0, 0.0, 1.0) if up is None else up
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    z = target - eye
     z /= np.linalg.norm(z)
     x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:
+        x = np.cross(z, np.array([1.0, 0.0, 0.0]))
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     T = np.eye(4)
