@@ -64,7 +64,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from simn_sim.experiments.runner import run_episode, write_json
 
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a directory (demo writes a folder)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # e.g. a parent is a file, or no permission
+        raise ValueError(f"cannot create the --out folder {out}: {e.strerror or e}") from e
     env_cfg = _env_cfg(args)
     agent = _resolve_agent(args.agent)
     episode = None

@@ -73,13 +73,14 @@ def run_episode(
     rerun_path: str | Path | None = None,
     progress: Any = None,
     env: gym.Env | None = None,
-    image_every: int = 1,
+    image_every: int = 2,
 ) -> dict[str, Any]:
     """Run one episode; returns the record (see :data:`RECORD_FIELDS`).
 
     ``episode``: an episode spec dict (``envs/`` episode files); ``None`` samples one from
     ``seed``. ``env`` may be passed to reuse a created env. ``progress``: an object with
-    ``update(n)`` (e.g. tqdm) called once per step.
+    ``update(n)`` (e.g. tqdm) called once per step. ``image_every``: the recording holds the
+    camera images of every n-th step only.
     """
     from simn_sim.agents import make_agent
     from simn_sim.viz import make_recorder
@@ -111,8 +112,14 @@ def run_episode(
         recorder = make_recorder(
             rerun_path, env.unwrapped.camera_info.intrinsics, image_every=image_every
         )
+        from simn_sim.env.scene import ROBOT_RADIUS, ROBOT_Z_BAND
+
+        free_space = getattr(env.unwrapped, "free_space", None)
         recorder.log_layout(
-            env.unwrapped.layout.footprints((0.03, 0.95)), np.asarray(info["episode_spec"]["goal"])
+            env.unwrapped.layout.footprints(ROBOT_Z_BAND),
+            np.asarray(info["episode_spec"]["goal"]),
+            robot_radius=getattr(free_space, "robot_radius", ROBOT_RADIUS),
+            robot_z=ROBOT_Z_BAND,
         )
         true_xy: list[np.ndarray] = []
         est_xy: list[np.ndarray] = []
