@@ -59,17 +59,24 @@ class Intrinsics:
         return dataclasses.asdict(self)
 
 
+def pixel_rays(intr: Intrinsics, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Ray tables of every ``stride``-th pixel: (h, w) float32 ``(u - cx) / fx`` and
+    ``(v - cy) / fy`` in full-image pixel coordinates (a point at depth z is (x z, y z, z))."""
+    v, u = np.mgrid[0 : intr.height : stride, 0 : intr.width : stride]
+    return (
+        ((u - intr.cx) / intr.fx).astype(np.float32),
+        ((v - intr.cy) / intr.fy).astype(np.float32),
+    )
+
+
 def backproject(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
     """(H, W) metric depth -> (H, W, 3) float32 points in the OpenCV camera frame (z = depth)."""
     h, w = depth.shape
     if (w, h) != (intr.width, intr.height):
         raise ValueError(f"depth is {w}x{h} but intrinsics are {intr.width}x{intr.height}")
-    u = np.arange(w, dtype=np.float32)[None, :]
-    v = np.arange(h, dtype=np.float32)[:, None]
+    rx, ry = pixel_rays(intr)
     z = depth.astype(np.float32, copy=False)
-    x = (u - np.float32(intr.cx)) * z / np.float32(intr.fx)
-    y = (v - np.float32(intr.cy)) * z / np.float32(intr.fy)
-    return np.stack([x, y, z], axis=-1)
+    return np.stack([rx * z, ry * z, z], axis=-1)
 
 
 def project(points_cam: np.ndarray, intr: Intrinsics) -> np.ndarray:

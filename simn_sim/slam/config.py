@@ -21,11 +21,54 @@ from simn_sim.mapping.config import (
     NeuralPointsConfig,
     TrainingConfig,
 )
+from simn_sim.perception.frame import PerceptionConfig
 from simn_sim.semantics import FloorClassifierConfig
 from simn_sim.tracking.localframes import FrameTriggerConfig
 from simn_sim.tracking.posegraph import PoseGraphConfig
 from simn_sim.tracking.registration import RegistrationConfig
-from simn_sim.tracking.topomap import LoopClosureConfig
+from simn_sim.tracking.topomap import DescriptorConfig, LoopClosureConfig
+
+# Keys of the flat SlamConfig before the world-model redesign and where they live now: a config
+# written by the old code fails with a message naming the new place (see ``SlamConfig.from_dict``).
+MOVED_KEYS: dict[str, str] = {
+    "pixel_stride": "perception.stride",
+    "min_depth": "perception.min_depth",
+    "max_depth": "perception.max_depth",
+    "normal_smooth_px": "perception.normal_smooth_px",
+    "implicit_normal_smooth_px": "perception.map_normal_smooth_px",
+    "track_degeneracy_ratio": "track_registration.degeneracy_ratio",
+    "track_min_valid_fraction": "track_registration.min_valid_fraction",
+    "implicit_grad_norm_min": "track_registration.grad_norm_min",
+    "max_correction_m": "track_max_correction_m",
+    "max_correction_deg": "track_max_correction_deg",
+    "describe_max_points": "descriptor.max_points",
+    "obstacle_voxel": "stores.obstacle_voxel",
+    "floor_voxel": "stores.floor_voxel",
+    "carve": "stores.carve",
+    "carve_margin": "stores.carve_margin",
+    "carve_frames": "stores.carve_frames",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class StoreConfig(Config):
+    """Per-local-frame obstacle / floor point stores (anchor coordinates) and free-space carving:
+    stored obstacle points of the ``carve_frames`` most recent local frames that the current depth
+    image sees *through* (its depth there exceeds the point's by ``carve_margin``) are removed,
+    so a person who walked away does not stay an obstacle."""
+
+    obstacle_voxel: float = 0.05
+    floor_voxel: float = 0.10
+    carve: bool = True
+    carve_margin: float = 0.10
+    carve_frames: int = 2
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        for f in ("obstacle_voxel", "floor_voxel", "carve_margin"):
+            v = getattr(self, f)
+            require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
+        require(self.carve_frames >= 1, n, "carve_frames", "must be >= 1")
 
 
 def _merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
@@ -72,9 +115,7 @@ class SlamConfig(Config):
     down-samples its own input at ``mapper.integrate_voxel_size`` (3 cm).
     """
 
-    pixel_stride: int = 0
-    min_depth: float = 0.28
-    max_depth: float = 6.0
+    perception: PerceptionConfig = PerceptionConfig(map_normal_smooth_px=1)
     track_voxel: float = 0.06
     max_track_points: int = 4000
     # mapping: the first observation of a frame trains ``open_train_iters`` (so the next frame
@@ -91,13 +132,6 @@ class SlamConfig(Config):
     #   "points": point-to-plane SDF of the local frame's surface store (surface_voxel grid,
     #   first observation per voxel kept, normals from the organised depth image).
     track_sdf: Literal["implicit", "points"] = "points"
-    # implicit tracking: the registration's gradient-norm validity floor (the registration
-    # config's 0.5 made points flip between valid and invalid where the blended planes of
-    # noisy normals meet, so LM's cost jumped and it stopped early), and the distance (m) a
-    # point may move before its k neural-point neighbours are searched again (0: every
-    # LM iteration; the search is ~70 % of a query)
-    implicit_grad_norm_min: float = 0.3
-    implicit_reuse_neighbors: float = 0.02
     # implicit tracking: a point further than this along the surface from its neighbours'
     # plane points has no SDF (the map's own validity is its 15 cm search radius, over which the
     # planes at the map's edge are extrapolated and pull the frame; the point store uses 3 cm).
@@ -105,12 +139,11 @@ class SlamConfig(Config):
     # desk 0.24 / 2.56 cm (D435i); 3 cm to the nearest neural point: corridor 0.50 / 0.44 cm but
     # the desk diverged (36 / 55 cm)
     implicit_max_dist: float = 0.04
-    # normals of the learned map's geometric prior: depth box-blurred over (2 k + 1)^2
-    # pixels (a plane's normal error times the 2-5 cm lever arm to a query is SDF error)
-    implicit_normal_smooth_px: int = 1
+    # the distance (m) a point may move before its k neural-point neighbours are searched again
+    # (0: every LM iteration; the search is ~70 % of a query)
+    implicit_reuse_neighbors: float = 0.02
     surface_voxel: float = 0.02
     surface_keep: Literal["first", "mean"] = "mean"  # per-voxel model point: first or average
-    normal_smooth_px: int = 1  # normals from depth box-blurred over (2 k + 1)^2 pixels; 0: raw
     track_max_depth: float = 4.0  # registration points up to this depth (stereo noise ~ z^2;
     # 2.5 m halves the D435i-noise ATE on the desk but loses the far walls that constrain
     # corridors, docs/slam.md)
@@ -135,12 +168,13 @@ class SlamConfig(Config):
     loop_kernel: bool = False  # revisit checks use the tracking kernel too (else nearest point)
     loop_sdf_max_dist: float = 0.15  # validity radius of the point SDF in revisit checks
     sdf_rebuild_growth: float = 0.1  # rebuild the point SDF when the store grew by this share
-    # Tracking registration: ``registration`` with these two replaced (the loop-closure check
-    # keeps the strict values). A weakly constrained frame (a corridor: walls + floor) is not
-    # rejected; instead the registration is fused with the motion prediction through its
-    # covariance, so the prediction fills in the degenerate directions.
-    track_degeneracy_ratio: float = 1e-7
-    track_min_valid_fraction: float = 0.2
+    # Tracking registration (revisit checks use the strict ``registration``). A weakly
+    # constrained frame (a corridor: walls + floor) is not rejected; instead the registration is
+    # fused with the motion prediction through its covariance, so the prediction fills in the
+    # degenerate directions.
+    track_registration: RegistrationConfig = RegistrationConfig(
+        degeneracy_ratio=1e-7, min_valid_fraction=0.2
+    )
     fuse_prior: bool = True
     weak_ratio: float = 1e-2  # information eigenvalues below this share of the largest: dropped
     prior_sigma_rot_deg: float = 1.5  # constant-velocity prediction uncertainty per frame
@@ -154,8 +188,10 @@ class SlamConfig(Config):
     # innovation gate: a fused correction beyond this Mahalanobis distance under the motion
     # prior's covariance is rejected (the prediction is kept); 0 disables
     gate_sigmas: float = 12.0
-    max_correction_m: float = 0.3  # a registration moving the prior further is rejected
-    max_correction_deg: float = 20.0
+    # a tracking registration moving the prediction further is rejected (revisit checks have
+    # their own, wider budget: loop.max_correction_*)
+    track_max_correction_m: float = 0.3
+    track_max_correction_deg: float = 20.0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
     odom_sigma_rot: float = 0.005  # rad
     odom_sigma_rot_per_rad: float = 0.02
@@ -173,20 +209,14 @@ class SlamConfig(Config):
     # in its region (x-y box) grown by loop.max_correction_m (the check's drift budget: with
     # less overlap the registration cannot pass it); 0: every descriptor candidate is checked
     revisit_min_overlap: float = 0.0
-    # frame descriptors from at most this many key points (DescriptorConfig.max_points); 0: all
-    describe_max_points: int = 0
-    # obstacle / floor point stores (per local frame, anchor coordinates)
-    obstacle_voxel: float = 0.05
-    floor_voxel: float = 0.10
-    carve: bool = True  # remove stored obstacle points the current depth sees through
-    carve_margin: float = 0.10  # seen-through depth must exceed the point's by this
-    carve_frames: int = 2  # carve the current and the previous (n - 1) local frames
-    semantics: bool = True
+    semantics: bool = True  # floor / obstacle labels (needs T_base_cam: the floor plane)
     # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
     # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and
     # SDF queries ~3-40x slower under load (OpenMP threads contending with other processes).
     torch_threads: int = 1
     seed: int = 0
+    stores: StoreConfig = StoreConfig()
+    descriptor: DescriptorConfig = DescriptorConfig()
     mapper: MapperConfig = dataclasses.field(default_factory=MapperConfig)
     registration: RegistrationConfig = dataclasses.field(default_factory=RegistrationConfig)
     trigger: FrameTriggerConfig = dataclasses.field(default_factory=FrameTriggerConfig)
@@ -196,13 +226,6 @@ class SlamConfig(Config):
 
     def validate(self) -> None:
         n = type(self).__name__
-        require(self.pixel_stride >= 0, n, "pixel_stride", "must be >= 0 (0: automatic)")
-        require(
-            math.isfinite(self.max_depth) and 0 <= self.min_depth < self.max_depth,
-            n,
-            "max_depth",
-            "need 0 <= min_depth < max_depth",
-        )
         require(
             not (self.track_sdf == "implicit" and self.map_kind == "points"),
             n,
@@ -210,20 +233,10 @@ class SlamConfig(Config):
             "'implicit' tracking needs map_kind 'implicit'",
         )
         require(self.sdf_rebuild_growth >= 0, n, "sdf_rebuild_growth", "must be >= 0")
-        require(
-            0 < self.implicit_grad_norm_min < 1,
-            n,
-            "implicit_grad_norm_min",
-            "must be in (0, 1)",
-        )
         require(self.implicit_reuse_neighbors >= 0, n, "implicit_reuse_neighbors", ">= 0")
         require(self.implicit_max_dist > 0, n, "implicit_max_dist", "must be > 0")
-        require(self.implicit_normal_smooth_px >= 0, n, "implicit_normal_smooth_px", ">= 0")
         for f in (
             "track_voxel",
-            "obstacle_voxel",
-            "floor_voxel",
-            "carve_margin",
             "surface_voxel",
             "point_sdf_max_dist",
         ):
@@ -246,8 +259,12 @@ class SlamConfig(Config):
         require(
             0 < self.point_sdf_normal_gate_deg <= 180, n, "point_sdf_normal_gate_deg", "(0, 180]"
         )
-        require(self.normal_smooth_px >= 0, n, "normal_smooth_px", "must be >= 0")
-        require(self.track_max_depth > self.min_depth, n, "track_max_depth", "> min_depth")
+        require(
+            self.track_max_depth > self.perception.min_depth,
+            n,
+            "track_max_depth",
+            "must be > perception.min_depth",
+        )
         require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")
         require(self.train_every >= 1, n, "train_every", "must be >= 1")
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
@@ -256,7 +273,6 @@ class SlamConfig(Config):
         require(self.depth_sigma_per_m2 >= 0, n, "depth_sigma_per_m2", "must be >= 0")
         require(self.revisit_checks_per_frame >= 0, n, "revisit_checks_per_frame", "must be >= 0")
         require(0 <= self.revisit_min_overlap <= 1, n, "revisit_min_overlap", "must be in [0, 1]")
-        require(self.describe_max_points >= 0, n, "describe_max_points", "must be >= 0 (0: all)")
         require(
             self.revisit_registrations_per_frame >= 0,
             n,
@@ -264,15 +280,13 @@ class SlamConfig(Config):
             "must be >= 0",
         )
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
-        require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
-        require(0 < self.track_degeneracy_ratio < 1, n, "track_degeneracy_ratio", "in (0, 1)")
-        require(0 <= self.track_min_valid_fraction <= 1, n, "track_min_valid_fraction", "[0, 1]")
+        require(self.track_max_correction_m > 0, n, "track_max_correction_m", "must be > 0")
         require(0 <= self.weak_ratio < 1, n, "weak_ratio", "must be in [0, 1)")
         require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")
         require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")
         require(self.odom_prior_sigma_rot_deg > 0, n, "odom_prior_sigma_rot_deg", "must be > 0")
         require(self.odom_prior_sigma_trans > 0, n, "odom_prior_sigma_trans", "must be > 0")
-        require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
+        require(self.track_max_correction_deg > 0, n, "track_max_correction_deg", "must be > 0")
         for f in (
             "odom_sigma_rot",
             "odom_sigma_trans",
@@ -281,8 +295,17 @@ class SlamConfig(Config):
         ):
             require(getattr(self, f) >= 0, n, f, "must be >= 0")
         require(self.odom_sigma_rot > 0 and self.odom_sigma_trans > 0, n, "odom_sigma_rot", "> 0")
-        require(self.carve_frames >= 1, n, "carve_frames", "must be >= 1")
         require(self.torch_threads >= 0, n, "torch_threads", "must be >= 0 (0: leave as is)")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> SlamConfig:
+        """As :meth:`Config.from_dict`; a key of the flat pre-redesign config fails with a
+        message naming where it lives now (:data:`MOVED_KEYS`)."""
+        moved = sorted(set(data or {}) & set(MOVED_KEYS))
+        if moved:
+            where = ", ".join(f"'{k}' -> '{MOVED_KEYS[k]}'" for k in moved)
+            raise ConfigError(f"SlamConfig: key(s) moved: {where}")
+        return super().from_dict(data)
 
     @classmethod
     def for_learned_tracking(cls, **changes: Any) -> SlamConfig:
@@ -299,6 +322,10 @@ class SlamConfig(Config):
             track_sdf="implicit",
             implicit_reuse_neighbors=0.0,
             implicit_max_dist=0.03,
+            # the gradient-norm validity floor of tracking on the learned map: 0.5 made points
+            # flip between valid and invalid where the blended planes of noisy normals meet, so
+            # LM's cost jumped and it stopped early
+            track_registration={**d["track_registration"], "grad_norm_min": 0.3},
             mapper=tracking_mapper_config().to_dict(),
         )
         return cls.from_dict(_merge(d, changes))
@@ -319,7 +346,7 @@ class SlamConfig(Config):
             revisit_checks_per_frame=1,
             revisit_registrations_per_frame=1,
             revisit_min_overlap=0.5,
-            describe_max_points=3000,
+            descriptor={**d["descriptor"], "max_points": 3000},
             # nearest-point SDF: the kernel's 8-neighbour queries doubled tracking time in the
             # loop (median 17 -> 47 ms per frame at 320x240, docs/navigation.md)
             point_sdf_kernel=0.0,
@@ -365,6 +392,8 @@ def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
 
 
 __all__ = [
+    "MOVED_KEYS",
+    "StoreConfig",
     "DecoderConfig",
     "NeuralPointsConfig",
     "SlamConfig",

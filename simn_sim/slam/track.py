@@ -1,0 +1,248 @@
+"""Tracking: register a frame's points against the current local frame's map.
+
+:class:`Tracker` predicts the camera pose in the current frame's anchor coordinates (the
+increment of the caller's prior, wheel odometry, or constant velocity without one), registers
+the frame's sub-sampled points by Levenberg-Marquardt on the frame map's SDF
+(:func:`~simn_sim.tracking.registration.register`) and fuses the result with the prediction
+through its covariance. A failed registration, or one that moves the prediction beyond the
+budget, keeps the prediction and says why (:class:`TrackResult`); nothing raises for bad
+tracking, and every such fallback is counted by the caller.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from simn_sim.geometry.se3 import inv_T, orthonormalize, pose_error, se3_exp
+from simn_sim.geometry.voxel import voxel_mean
+from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.frames import LocalFrames
+from simn_sim.tracking.lie import constant_velocity_prior, se3_log
+from simn_sim.tracking.pointsdf import PointCloudSDF
+from simn_sim.tracking.registration import register
+
+
+@dataclasses.dataclass
+class TrackResult:
+    """T_anchor_cam: (4, 4) pose in the current frame's anchor coordinates; success / reason /
+    iterations: the registration's outcome; against: the local frame registered to (None: no
+    map); rms: its final inlier RMS (m)."""
+
+    T_anchor_cam: np.ndarray
+    success: bool
+    reason: str
+    iterations: int
+    against: int | None
+    rms: float
+
+
+class Tracker:
+    """Pose prediction and frame-to-local-frame registration (see the module docstring)."""
+
+    def __init__(self, cfg: SlamConfig, frames: LocalFrames, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self.frames = frames
+        self.rng = rng
+        self.reg_cfg = cfg.track_registration
+        # a tracking registration is fused as weakly constrained below the strict (revisit)
+        # registration's degeneracy ratio; it fails only below the tracking one
+        self.weak_eig_ratio = cfg.registration.degeneracy_ratio
+        sr, st = np.radians(cfg.prior_sigma_rot_deg), cfg.prior_sigma_trans
+        self._cv_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+        sr, st = np.radians(cfg.odom_prior_sigma_rot_deg), cfg.odom_prior_sigma_trans
+        self._odom_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+        self.hist: list[tuple[float, np.ndarray]] = []  # (t, T_anchor_cam) of the last two
+        self.last_prior: np.ndarray | None = None
+        self._rms_ema: float | None = None  # running inlier RMS of the registrations
+
+    # ---- points ------------------------------------------------------------------------------
+    def track_points(self, pts: np.ndarray) -> np.ndarray:
+        """Registration points: up to ``track_max_depth``, one per ``track_voxel`` voxel, at most
+        ``max_track_points`` (a random subset from the tracker's generator)."""
+        pts = pts[pts[:, 2] <= self.cfg.track_max_depth]
+        if len(pts) == 0:
+            return pts
+        tp, _, _ = voxel_mean(pts, self.cfg.track_voxel)
+        if len(tp) > self.cfg.max_track_points:
+            tp = tp[self.rng.choice(len(tp), self.cfg.max_track_points, replace=False)]
+        return tp.astype(np.float32)
+
+    def point_weights(self, pts: np.ndarray) -> np.ndarray | None:
+        """Inverse depth-noise variance of each point relative to a point at zero range,
+        sigma(z) = depth_sigma0 + depth_sigma_per_m2 z^2; None when ``depth_sigma_per_m2`` is 0."""
+        k = self.cfg.depth_sigma_per_m2
+        if k <= 0:
+            return None
+        s0 = self.cfg.depth_sigma0
+        return (s0 / (s0 + k * pts[:, 2].astype(np.float64) ** 2)) ** 2
+
+    # ---- the SDF registered against ----------------------------------------------------------
+    @property
+    def kernel(self) -> float:
+        """Kernel width (m) of the tracking point SDF: ``point_sdf_kernel_rms_factor`` times the
+        running inlier RMS, clipped to [``point_sdf_kernel_min``, ``point_sdf_kernel``]."""
+        c = self.cfg
+        if c.point_sdf_kernel <= 0:
+            return 0.0
+        if c.point_sdf_kernel_rms_factor <= 0 or self._rms_ema is None:
+            return c.point_sdf_kernel
+        h = c.point_sdf_kernel_rms_factor * self._rms_ema
+        return float(np.clip(h, c.point_sdf_kernel_min, c.point_sdf_kernel))
+
+    def update_rms(self, rms: float) -> None:
+        if np.isfinite(rms):
+            a = 0.3
+            self._rms_ema = rms if self._rms_ema is None else (1 - a) * self._rms_ema + a * rms
+
+    def sdf_of(self, fid: int, growth: float | None = None):
+        """``sdf_and_grad`` of frame ``fid`` for registration (per ``track_sdf``), or None."""
+        st = self.frames.states[fid]
+        if self.cfg.track_sdf == "implicit":
+            if st.n_trained == 0:
+                return None
+            c = self.cfg
+            dmax = c.implicit_max_dist if growth is None else None  # revisits: the map's own
+            return st.frame.map.tracking_sdf(c.implicit_reuse_neighbors, dmax).sdf_and_grad
+        g = self.cfg.sdf_rebuild_growth if growth is None else growth
+        sdf = st.surface.point_sdf(g)
+        if sdf is None:
+            return None
+        if sdf.kernel > 0:
+            sdf.kernel = self.kernel
+        return sdf.sdf_and_grad
+
+    def point_sdf(self, P: np.ndarray, N: np.ndarray, max_dist: float) -> PointCloudSDF:
+        c = self.cfg
+        return PointCloudSDF(
+            P,
+            N,
+            max_dist=max_dist,
+            kernel=self.kernel,
+            k=c.point_sdf_k,
+            normal_gate=float(np.cos(np.radians(c.point_sdf_normal_gate_deg))),
+        )
+
+    def _target(self) -> tuple[int, Any] | None:
+        """(frame id, sdf_and_grad): the current frame's map, or the previous frame's while the
+        current one has none yet."""
+        cur = self.frames.current_id
+        for fid in [cur, cur - 1] if cur > 0 else [cur]:
+            sdf = self.sdf_of(fid)
+            if sdf is not None:
+                return fid, sdf
+        return None
+
+    # ---- prediction and registration ---------------------------------------------------------
+    def start(self, t: float) -> None:
+        """The first frame: the camera is at the new frame's anchor."""
+        self.hist = [(t, np.eye(4))]
+
+    def reanchor(self, T_new_old: np.ndarray) -> None:
+        """A new local frame opened: express the history in its anchor coordinates."""
+        self.hist = [(t, T_new_old @ T) for t, T in self.hist]
+
+    def commit(self, t: float, T_anchor_cam: np.ndarray, prior: np.ndarray | None) -> None:
+        self.hist = (self.hist + [(t, T_anchor_cam)])[-2:]
+        self.last_prior = prior
+
+    def predict(self, t: float, prior: np.ndarray | None) -> np.ndarray:
+        """Predicted ``T_anchor_cam`` in the current frame."""
+        T1 = self.hist[-1][1]
+        if prior is not None and self.last_prior is not None:
+            return T1 @ (inv_T(self.last_prior) @ prior)
+        if len(self.hist) < 2:
+            return T1.copy()
+        (t0, T0), (t1, _) = self.hist[-2], self.hist[-1]
+        ratio = (t - t1) / (t1 - t0) if t1 > t0 else 1.0
+        return constant_velocity_prior(T0, T1, float(np.clip(ratio, 0.0, 5.0)))
+
+    def track(self, pts: np.ndarray, T_pred: np.ndarray, prior: np.ndarray | None) -> TrackResult:
+        """Register ``pts`` starting from ``T_pred`` (anchor coordinates)."""
+        use_odom = prior is not None and self.last_prior is not None
+        res = self._register(pts, T_pred, self._odom_info if use_odom else self._cv_info)
+        if res.success:
+            self.update_rms(res.rms)
+        res.T_anchor_cam = orthonormalize(res.T_anchor_cam)
+        return res
+
+    def register_c2f(self, pts: np.ndarray, sdf, T_init: np.ndarray, reg_cfg):
+        """Register; on a kernel point SDF (with ``c2f``) coarse to fine: first with the widest
+        kernel, then from there with the noise-adaptive width (:attr:`kernel`)."""
+        w = self.point_weights(pts)
+        obj = getattr(sdf, "__self__", None)
+        fine = self.kernel
+        if not isinstance(obj, PointCloudSDF) or obj.kernel <= 0 or not self.cfg.c2f:
+            return register(pts, sdf, T_init, reg_cfg, weights=w)
+        obj.kernel = self.cfg.point_sdf_kernel
+        res = register(pts, sdf, T_init, reg_cfg, weights=w)
+        if not res.success or fine >= obj.kernel:
+            return res
+        obj.kernel = fine
+        res2 = register(pts, sdf, res.pose, reg_cfg, weights=w)
+        return res2 if res2.success else res
+
+    def _register(self, pts: np.ndarray, T_pred: np.ndarray, prior_info: np.ndarray) -> TrackResult:
+        """Register against the tracking target; the prediction on any failure."""
+        if len(pts) < self.reg_cfg.min_valid_points:
+            return TrackResult(T_pred, False, f"only {len(pts)} valid points", 0, None, np.nan)
+        target = self._target()
+        if target is None:
+            return TrackResult(T_pred, False, "no trained map yet", 0, None, np.nan)
+        fid, sdf = target
+        topo = self.frames.topo
+        T_cur_f = inv_T(topo.anchor(self.frames.current_id)) @ topo.anchor(fid)
+        init = inv_T(T_cur_f) @ T_pred
+        res = self.register_c2f(pts, sdf, init, self.reg_cfg)
+        if not res.success:
+            return TrackResult(T_pred, False, res.reason, res.iterations, fid, res.final_rms)
+        T_est = orthonormalize(T_cur_f @ res.pose)
+        reason = "ok"
+        if self.cfg.fuse_prior:
+            fused = self._fuse(pts, T_pred, T_est, res, prior_info)
+            if fused is None:  # the covariance could not be inverted: registration as is
+                pass
+            elif isinstance(fused, str):
+                return TrackResult(T_pred, False, fused, res.iterations, fid, res.final_rms)
+            else:
+                T_est = fused
+            if res.eig_ratio < self.weak_eig_ratio:
+                reason = f"ok (weakly constrained, eigenvalue ratio {res.eig_ratio:.1e})"
+        dt, dr = pose_error(T_pred, T_est)
+        if dt > self.cfg.track_max_correction_m or np.degrees(dr) > self.cfg.track_max_correction_deg:
+            why = f"correction {dt:.3f} m / {np.degrees(dr):.1f} deg beyond the budget"
+            return TrackResult(T_pred, False, why, res.iterations, fid, res.final_rms)
+        return TrackResult(T_est, True, reason, res.iterations, fid, res.final_rms)
+
+    def _fuse(self, pts, T_pred, T_est, res, prior_info) -> np.ndarray | str | None:
+        """Bayesian fusion in the camera-frame tangent at the prediction: the registration
+        decides the well-constrained directions, the prediction the degenerate ones. Returns the
+        fused pose, a reason string when the innovation gate rejects it, or None when the
+        registration's covariance is singular (``LinAlgError``: the registration is kept)."""
+        delta = se3_log(inv_T(T_pred) @ T_est)
+        try:
+            info = np.linalg.inv(0.5 * (res.covariance + res.covariance.T))
+            if res.eig_ratio < self.weak_eig_ratio:
+                # weakly constrained: directions whose information is below ``weak_ratio`` of
+                # the largest carry the bias of the model's edges rather than information; drop
+                # them, the prior decides there. Rotations are scaled by the median depth so
+                # both blocks are in metres.
+                L = float(np.median(pts[:, 2])) if len(pts) else 1.0
+                D = np.diag([L] * 3 + [1.0] * 3)
+                Di = np.linalg.inv(D)
+                ev, V = np.linalg.eigh(Di @ (0.5 * (info + info.T)) @ Di)
+                ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
+                info = D @ ((V * ev) @ V.T) @ D
+            fused = np.linalg.solve(info + prior_info, info @ delta)
+        except np.linalg.LinAlgError:
+            return None
+        # innovation gate: a correction many prior sigmas away is a registration that slid (an
+        # edge of the model, a weakly constrained view), not the motion the prediction missed
+        gate = self.cfg.gate_sigmas
+        if gate > 0:
+            m = float(np.sqrt(max(fused @ prior_info @ fused, 0.0)))
+            if m > gate:
+                return f"correction {m:.1f} sigma of the motion prior (gate {gate:g})"
+        return orthonormalize(T_pred @ se3_exp(fused))
