@@ -110,9 +110,10 @@ class RerunRecorder(NullRecorder):
     resolution, both every ``image_every``-th step; the pinhole is static. The topological map,
     the planner tree and path are logged only when they change. Local frames
     (``debug()["local_frames"]``: ``{k: {"T_anchor", "points", "labels", "version"}}``): the
-    anchor transform is logged only when the anchor moved; the points only when ``version``
-    changed, and for the growing frame (the highest id) at most every ``points_every`` steps;
-    frames no longer reported are cleared; what is still pending is written at :meth:`close`.
+    anchor transform is logged only when the anchor moved; a frame's points when it first
+    appears, then when ``version`` changed, but at most every ``points_every`` steps (a frame
+    that keeps growing is drawn up to ``points_every - 1`` steps late; its last version is
+    written at :meth:`close` at the latest); frames no longer reported are cleared.
     """
 
     def __init__(
@@ -244,7 +245,6 @@ class RerunRecorder(NullRecorder):
                 self.rec.log(f"world/local_frames/{k}", rr.Clear(recursive=True))
                 for d in (self._lf_T, self._lf_ver, self._lf_step, self._lf_pending):
                     d.pop(k, None)
-        newest = max(frames) if frames else None
         for k, fr in sorted(frames.items()):
             T = self._pose_to_world(fr["T_anchor"], dbg)
             old_T = self._lf_T.get(k)
@@ -259,7 +259,7 @@ class RerunRecorder(NullRecorder):
                 self._lf_pending.pop(k, None)
                 continue
             last = self._lf_step.get(k)
-            if k == newest and last is not None and step - last < self.points_every:
+            if last is not None and step - last < self.points_every:
                 self._lf_pending[k] = fr  # still growing: wait a few steps
                 continue
             self._log_frame_points(k, fr, step)
