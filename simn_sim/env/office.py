@@ -24,9 +24,7 @@ oracle agents only. ``reset`` also returns ``camera`` (:class:`CameraInfo`: intr
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -34,10 +32,11 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from simn_sim.config import Config, ConfigError, require
 from simn_sim.env.episodes import EpisodeSpec
 from simn_sim.env.layout import Layout, generate_layout
-from simn_sim.env.noise import DepthNoiseConfig, apply_depth_noise
+from simn_sim.env.noise import apply_depth_noise
+from simn_sim.env.office_config import CameraInfo, EnvConfig, env_config_from_file
+from simn_sim.env.people import _People
 from simn_sim.env.scene import (
     ROBOT_GROUP,
     ROBOT_RADIUS,
@@ -52,140 +51,22 @@ from simn_sim.geometry.se3 import inv_T, make_T, planar_T
 from simn_sim.metrics import EpisodeMetrics
 from simn_sim.paths import envs_dir
 
+__all__ = [
+    "REFERENCE_LAYOUT",
+    "CameraInfo",
+    "EnvConfig",
+    "SimnOfficeEnv",
+    "env_config_from_file",
+    "load_layout",
+]
+
 REFERENCE_LAYOUT = "office_reference.json"
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig(Config):
-    """Configuration of :class:`SimnOfficeEnv` (every field validated)."""
-
-    layout_seed: int | None = None  # None: the fixed reference office in envs/
-    width: int = 640
-    height: int = 480
-    fovy_deg: float = 42.5
-    depth_min: float = 0.28
-    depth_max: float = 10.0
-    depth_noise: DepthNoiseConfig = DepthNoiseConfig()
-    odom_noise_trans: float = 0.0  # std of translation error per metre driven (m/m)
-    odom_noise_rot: float = 0.0  # std of heading error per radian turned + per metre (rad)
-    control_hz: float = 10.0
-    v_min: float = -0.3
-    v_max: float = 1.0
-    w_max: float = 1.5
-    success_distance: float = 0.36
-    max_episode_steps: int = 500
-    max_collisions: int | None = None  # end the episode after this many collisions
-    min_geodesic: float = 3.0  # sampled episodes: goal geodesic distance range (m)
-    max_geodesic: float = 14.0
-    start_clearance: float = 0.15  # sampled starts/goals keep this margin beyond the robot radius
-    n_people: int = 0  # moving people (the dynamic office)
-    segmentation: bool = False  # also render the segmentation (info['segmentation'])
-
-    def validate(self) -> None:
-        n = "EnvConfig"
-        require(
-            self.layout_seed is None or self.layout_seed >= 0,
-            n,
-            "layout_seed",
-            "must be >= 0 or null",
-        )
-        require(
-            16 <= self.width <= 1920 and 16 <= self.height <= 1080,
-            n,
-            "width/height",
-            "image size must be within 16x16..1920x1080",
-        )
-        require(0 < self.fovy_deg < 180, n, "fovy_deg", "must be in (0, 180)")
-        require(
-            0 < self.depth_min < self.depth_max, n, "depth_min", "need 0 < depth_min < depth_max"
-        )
-        require(
-            self.odom_noise_trans >= 0 and self.odom_noise_rot >= 0,
-            n,
-            "odom_noise_*",
-            "must be >= 0",
-        )
-        require(0 < self.control_hz <= 100, n, "control_hz", "must be in (0, 100]")
-        require(self.v_min <= 0 < self.v_max, n, "v_min/v_max", "need v_min <= 0 < v_max")
-        require(
-            self.v_max <= 2.0 and self.v_min >= -2.0,
-            n,
-            "v_max",
-            "|v| bound must be <= 2 m/s (actuator limit)",
-        )
-        require(0 < self.w_max <= 4.0, n, "w_max", "must be in (0, 4] rad/s")
-        require(self.success_distance > 0, n, "success_distance", "must be > 0")
-        require(self.max_episode_steps >= 1, n, "max_episode_steps", "must be >= 1")
-        require(
-            self.max_collisions is None or self.max_collisions >= 1,
-            n,
-            "max_collisions",
-            "must be >= 1 or null",
-        )
-        require(
-            0 < self.min_geodesic < self.max_geodesic,
-            n,
-            "min_geodesic",
-            "need 0 < min_geodesic < max_geodesic",
-        )
-        require(self.start_clearance >= 0, n, "start_clearance", "must be >= 0")
-        require(0 <= self.n_people <= 20, n, "n_people", "must be in [0, 20]")
-
-
-@dataclasses.dataclass(frozen=True)
-class CameraInfo:
-    """Everything about the camera, in one place."""
-
-    intrinsics: Intrinsics
-    T_base_cam: np.ndarray  # 4x4, OpenCV optical frame -> base frame
-    depth_min: float
-    depth_max: float
 
 
 def load_layout(layout_seed: int | None) -> Layout:
     if layout_seed is None:
         return Layout.load(envs_dir() / REFERENCE_LAYOUT)
     return generate_layout(layout_seed)
-
-
-class _People:
-    """People walking between waypoints at walking speed (kinematic mocap capsules)."""
-
-    def __init__(self, fs: FreeSpace2D, n: int, rng: np.random.Generator, speed=(0.8, 1.3)):
-        self.fs, self.rng = fs, rng
-        self.pos = (
-            fs.sample_free(rng, n, min_clearance=ROBOT_RADIUS + 0.1) if n else np.zeros((0, 2))
-        )
-        self.paths: list[np.ndarray] = [np.zeros((0, 2))] * n
-        self.speed = rng.uniform(*speed, size=n)
-        for i in range(n):
-            self._new_target(i)
-
-    def _new_target(self, i: int) -> None:
-        for _ in range(20):
-            tgt = self.fs.sample_free(self.rng, 1, min_clearance=ROBOT_RADIUS + 0.1)[0]
-            path = self.fs.shortest_path(self.pos[i], tgt)
-            if path is not None and len(path) >= 2:
-                self.paths[i] = path[1:]
-                return
-        self.paths[i] = self.pos[i][None]
-
-    def advance(self, dt: float) -> None:
-        for i in range(len(self.pos)):
-            step = self.speed[i] * dt
-            while step > 1e-9:
-                if len(self.paths[i]) == 0:
-                    self._new_target(i)
-                    break
-                d = self.paths[i][0] - self.pos[i]
-                dist = float(np.hypot(*d))
-                if dist <= step:
-                    self.pos[i] = self.paths[i][0]
-                    self.paths[i] = self.paths[i][1:]
-                    step -= dist
-                else:
-                    self.pos[i] = self.pos[i] + d / dist * step
-                    step = 0.0
 
 
 class SimnOfficeEnv(gym.Env):
@@ -543,14 +424,3 @@ def _quat_to_mat(q: np.ndarray) -> np.ndarray:
     m = np.zeros(9)
     mujoco.mju_quat2Mat(m, np.asarray(q, float))
     return m.reshape(3, 3)
-
-
-def env_config_from_file(path: str | Path) -> EnvConfig:
-    import yaml
-
-    p = Path(path)
-    try:
-        d = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{p}: invalid YAML: {e}") from e
-    return EnvConfig.from_dict(d)
