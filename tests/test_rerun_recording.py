@@ -98,6 +98,50 @@ def assert_arcs_on_nodes(path: Path) -> int:
     return n
 
 
+def blueprint_views(path: Path) -> list[tuple[str, str, str, list[str]]]:
+    """The default blueprint's views: (class, name, origin, contents queries)."""
+    from rerun.chunk import RrdReader
+
+    r = RrdReader(path)
+    stores = r.blueprints()
+    assert stores, f"{path}: no default blueprint"
+    views: dict[str, dict] = {}
+    for ch in r.stream(store=stores[0]):
+        ent = ch.entity_path.strip("/")
+        if not ent.startswith("view/"):
+            continue
+        rb = ch.to_record_batch()
+        vid = "/".join(ent.split("/")[:2])
+        for n in rb.schema.names:
+            if n.split(":")[-1] in ("class_identifier", "display_name", "space_origin", "query"):
+                views.setdefault(vid, {})[n.split(":")[-1]] = rb.column(n).to_pylist()[-1]
+    return sorted(
+        (
+            v["class_identifier"][0],
+            v["display_name"][0],
+            v["space_origin"][0],
+            v.get("query", []),
+        )
+        for v in views.values()
+    )
+
+
+def test_default_blueprint(tmp_path: Path) -> None:
+    """A large 3-D view, rgb and depth in separate 2-D views, the timings in one plot (ms)."""
+    rrd = tmp_path / "bp.rrd"
+    _record_hand_made(rrd, _debug)
+    views = blueprint_views(rrd)
+    by_kind: dict[str, list] = {}
+    for kind, name, origin, query in views:
+        by_kind.setdefault(kind, []).append((name, origin, query))
+    assert sorted(by_kind) == ["2D", "3D", "TimeSeries"], views
+    assert sorted(q for _, _, q in by_kind["2D"]) == [["$origin/depth"], ["$origin/rgb"]]
+    ((name, origin, _),) = by_kind["TimeSeries"]
+    assert origin == "metrics" and "(ms)" in name
+    ((_, origin, query),) = by_kind["3D"]
+    assert origin == "world" and "- $origin/camera/image/depth" in query
+
+
 # ----------------------------------------------------------------------------- oracle episode
 def test_oracle_recording_has_entities_and_steps(tmp_path: Path) -> None:
     spec = next(
@@ -148,9 +192,8 @@ def test_oracle_recording_has_entities_and_steps(tmp_path: Path) -> None:
     np.testing.assert_allclose(centre[n][:2], t[-1, :2], atol=1e-5)
     # walls are 0.15 m thick, centred on the building's outline
     assert_inside(rrd, bounds, margin=0.1)
-    from rerun.chunk import RrdReader
-
-    assert RrdReader(rrd).blueprints(), "no default blueprint in the recording"
+    views = blueprint_views(rrd)
+    assert sorted(views) == ["2D", "2D", "3D", "TimeSeries"], views
 
 
 # ----------------------------------------------------------------- hand-made agent debug data
