@@ -197,8 +197,9 @@ class RerunRecorder(NullRecorder):
 
     def set_agent_frame(self, T_world_agent: np.ndarray) -> None:
         T = np.asarray(T_world_agent, float).copy()
-        if not np.array_equal(T, self._T_wa):
-            self._lf_T.clear()  # re-log the anchors through the new pose
+        if not np.array_equal(T, self._T_wa):  # re-log what is drawn through the old pose
+            self._lf_T.clear()
+            self._last.clear()
         self._T_wa = T
 
     def _to_world(self, pts: np.ndarray, dbg: dict) -> np.ndarray:

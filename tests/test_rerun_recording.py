@@ -193,7 +193,7 @@ def test_oracle_recording_has_entities_and_steps(tmp_path: Path) -> None:
     # walls are 0.15 m thick, centred on the building's outline
     assert_inside(rrd, bounds, margin=0.1)
     views = blueprint_views(rrd)
-    assert sorted(views) == ["2D", "2D", "3D", "TimeSeries"], views
+    assert sorted(v[0] for v in views) == ["2D", "2D", "3D", "TimeSeries"], views
 
 
 # ----------------------------------------------------------------- hand-made agent debug data
