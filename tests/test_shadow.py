@@ -1,10 +1,10 @@
-"""Occlusion shadows (simn_sim.agents.shadow) against exact geometry: a plate seen by a
+"""Occlusion shadows (simn_sim.world.shadow) against exact geometry: a plate seen by a
 camera that looks along +x, and depth images of planes at known distances."""
 
 import numpy as np
 import pytest
 
-from simn_sim.agents.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
+from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 from simn_sim.geometry.camera import Intrinsics
 
 # 200 x 200 px, 127 deg field of view: every sample near the plate is in view

@@ -1,0 +1,171 @@
+"""The planner's view of a world model: occupancy for planning and safety, soft shadows, bumps.
+
+:class:`ObstacleMap` holds three :class:`~simn_sim.planning.collision.CollisionChecker` s over
+the same obstacle points: ``planning`` (robot radius + margin), ``safety`` (radius + at most
+3 cm: the follower's blocked check and the recovery trigger, so a path that grazes the planning
+margin does not make the robot dither at the margin's edge) and ``shadows``, the cells that
+may hide an obstacle (:mod:`simn_sim.world.shadow`): plans are pushed away from them where there
+is room, they never block a plan. Bump points (an obstacle the base ran into but the camera did
+not see) are kept across rebuilds. Unknown space is free.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
+from simn_sim.config import Config, require
+from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.se3 import transform_points
+from simn_sim.planning import CollisionChecker, CollisionConfig
+from simn_sim.semantics import OBSTACLE
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleConfig(Config):
+    """collision: the planning model (the safety model uses min(3 cm, margin)).
+    rebuild_every: control steps between rebuilds of the models from the local frames' stores
+    (which drop points seen through: no ghosts); anchors moved by the pose graph also rebuild.
+    shadow_depth: occlusion shadows, the space up to this far (m) behind each seen obstacle
+    point below its continued camera ray (a chair seen from behind hides its seat); 0: off.
+    shadow_range: only obstacle points within this horizontal range (m) of the camera cast.
+    shadow_edge_jump: only points of surfaces whose top edge is in view cast (contours are depth
+    jumps above this, m): walls and door jambs do not. blind_shadow_depth: an obstacle point at
+    the image's lower border, unless on a surface seen to be vertical, may go on towards the
+    camera beneath the view; the hidden space up to this far (m) is shadow too; 0: off."""
+
+    collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
+    rebuild_every: int = 20
+    shadow_depth: float = 0.3
+    shadow_range: float = 1.5
+    shadow_edge_jump: float = 0.15
+    blind_shadow_depth: float = 0.6
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        res = self.collision.resolution
+        require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
+        for f in ("shadow_depth", "blind_shadow_depth"):
+            v = getattr(self, f)
+            require(v == 0 or v >= res, n, f, f"must be 0 (off) or >= the collision resolution ({res} m)")
+        require(self.shadow_range > 0, n, "shadow_range", "must be > 0")
+        require(self.shadow_edge_jump > 0, n, "shadow_edge_jump", "must be > 0")
+
+
+class ObstacleMap:
+    """See the module docstring."""
+
+    def __init__(self, cfg: ObstacleConfig) -> None:
+        self.cfg = cfg
+        c = cfg.collision
+        self.planning = CollisionChecker(c)
+        self.safety = CollisionChecker(c.replace(margin=min(0.03, c.margin)))
+        self.shadow = OcclusionShadow(c.resolution, cfg.shadow_depth) if cfg.shadow_depth > 0 else None
+        self._shadow_map = CollisionChecker(c) if self.shadow is not None else None
+        self._shadow_dirty = False  # shadow cells were cleared since the shadow model was built
+        self.bump_points: list[np.ndarray] = []
+
+    # ---- obstacles ---------------------------------------------------------------------------
+    def add(self, points: np.ndarray) -> None:
+        """Add (N, 3) obstacle points (agent frame) to the planning and safety models."""
+        if len(points):
+            lab = np.full(len(points), OBSTACLE, np.int8)
+            self.planning.update(points, lab)
+            self.safety.update(points, lab)
+
+    def rebuild(self, obstacle_points: np.ndarray) -> None:
+        """Both models anew from ``obstacle_points`` plus the bump points."""
+        self.planning.reset()
+        self.safety.reset()
+        pts = np.concatenate([obstacle_points, *self.bump_points]) if self.bump_points else obstacle_points
+        self.add(pts)
+
+    def add_bump(self, T_world_base: np.ndarray, robot_radius: float) -> None:
+        """An obstacle just ahead of the hull that the camera cannot see: an arc of points."""
+        a = np.radians(np.linspace(-40, 40, 9))
+        r = robot_radius + 0.03
+        local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
+        pts = transform_points(T_world_base, local)
+        self.bump_points.append(pts)
+        self.add(pts)
+
+    # ---- shadows -----------------------------------------------------------------------------
+    def shadow_model(self) -> CollisionChecker | None:
+        """The shadow cells' obstacle model (None: shadows off), rebuilt first if cells were
+        cleared since."""
+        if self._shadow_map is not None and self._shadow_dirty:
+            self._shadow_map.reset()
+            self._shadow_dirty = False
+            self.add_shadow(self.shadow.shadow)
+        return self._shadow_map
+
+    def add_shadow(self, keys: np.ndarray) -> None:
+        if self._shadow_map is None or not len(keys):
+            return
+        c = self.cfg.collision
+        xy = self.shadow.centres(keys)
+        z = np.full((len(xy), 1), 0.5 * (c.z_min + c.z_max))
+        self._shadow_map.update(np.hstack([xy, z]), np.full(len(xy), OBSTACLE, np.int8))
+
+    def observe_shadow(
+        self,
+        obstacle_points: np.ndarray,
+        T_wc: np.ndarray,
+        base_xy: np.ndarray,
+        depth: np.ndarray,
+        intr: Intrinsics,
+        pixels: np.ndarray,
+    ) -> np.ndarray:
+        """Feed one view to the shadows; returns the keys of the new shadow cells.
+
+        obstacle_points: (N, 3) this view's obstacle points (agent frame); pixels: (N, 2) their
+        (row, column) in ``depth`` (the strided depth image, ``intr`` its intrinsics)."""
+        if self.shadow is None:
+            return np.zeros(0, np.int64)
+        cfg, c = self.cfg, self.cfg.collision
+        in_z = (obstacle_points[:, 2] >= c.z_min) & (obstacle_points[:, 2] <= c.z_max)
+        band = in_z & (np.hypot(*(obstacle_points[:, :2] - T_wc[:2, 3]).T) <= cfg.shadow_range)
+        if band.any():  # the top contours only matter for points that may cast
+            hw = max(1, round(3 * depth.shape[1] / 320))
+            topped = below_top_contour(depth, cfg.shadow_edge_jump, hw)
+            band &= topped[pixels[:, 0], pixels[:, 1]]
+        n_cleared = self.shadow.traverse(base_xy, c.robot_radius)
+        new, n_seen = self.shadow.observe(obstacle_points[band], T_wc, depth, intr)
+        self._shadow_dirty |= n_cleared + n_seen > 0
+        if cfg.blind_shadow_depth > 0 and len(obstacle_points):
+            H = depth.shape[0]
+            rows = max(2, math.ceil(0.02 * H))  # the bottom 2 % of the image
+            bottom = in_z & (pixels[:, 0] >= H - rows)
+            if bottom.any():
+                step = max(2, round(0.01 * H))
+                cont = may_continue_below_view(depth, intr, T_wc, rows, step, cfg.shadow_edge_jump)
+                sel = np.flatnonzero(bottom)
+                sel = sel[cont[pixels[sel, 0], pixels[sel, 1]]]
+                if len(sel):
+                    blind = self.shadow.cast_below_view(
+                        obstacle_points[sel], T_wc, intr, cfg.blind_shadow_depth
+                    )
+                    new = np.union1d(new, blind)
+        return new
+
+    def integrate(
+        self,
+        obstacle_points: np.ndarray,
+        pixels: np.ndarray,
+        T_wc: np.ndarray,
+        base_xy: np.ndarray,
+        depth: np.ndarray,
+        intr: Intrinsics,
+        stored_points: np.ndarray | None,
+    ) -> None:
+        """One view: shadows, then either a rebuild from ``stored_points`` (all obstacle points
+        of the local frames; None: no rebuild this step) or the view's points added."""
+        new_shadow = self.observe_shadow(obstacle_points, T_wc, base_xy, depth, intr, pixels)
+        if stored_points is not None:
+            self.rebuild(stored_points)
+        else:
+            self.add(obstacle_points)
+        self.add_shadow(new_shadow)

@@ -1,0 +1,80 @@
+"""The SIMN front-end as the agent's world model (``pose_source: slam``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.se3 import inv_T
+from simn_sim.semantics import OBSTACLE
+from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.pipeline import SimnSlam
+from simn_sim.tracking.topomap import TopoMap
+from simn_sim.world.base import WorldStep
+from simn_sim.world.obstacles import ObstacleConfig, ObstacleMap
+
+
+class SlamWorld:
+    """:class:`~simn_sim.slam.pipeline.SimnSlam` tracks every frame against the current local
+    frame's map, opens local frames, grows the topological map and closes loops; the obstacle
+    view is rebuilt from the local frames' stores when the anchors move and every
+    ``rebuild_every`` steps, and grows by each frame's obstacle points in between."""
+
+    def __init__(
+        self, slam_cfg: SlamConfig, obstacle_cfg: ObstacleConfig, intr: Intrinsics, T_base_cam: np.ndarray
+    ) -> None:
+        self.slam = SimnSlam(slam_cfg, intr, T_base_cam=T_base_cam)
+        self.T_base_cam = T_base_cam
+        self.obstacles = ObstacleMap(obstacle_cfg)
+        self._anchors_version = 0
+        self._steps = 0
+        self._pose: np.ndarray | None = None
+
+    def update(self, t: float, obs: dict[str, np.ndarray], T_odom: np.ndarray) -> WorldStep:
+        # only the odometry's change between calls is used: the prior must not contain the
+        # front-end's own corrections, or each correction would be applied again every frame
+        fr = self.slam.process(t, obs["rgb"], obs["depth"], T_odom @ self.T_base_cam)
+        T_wc = fr.T_world_cam
+        self._pose = T_wc @ inv_T(self.T_base_cam)
+        f = self.slam.frames
+        rebuild = f.anchors_version != self._anchors_version or self._steps % self.obstacles.cfg.rebuild_every == 0
+        self._anchors_version = f.anchors_version
+        p = self.slam.perception
+        self.obstacles.integrate(
+            fr.obstacle_points_world,
+            fr.pixels[fr.labels == OBSTACLE],
+            T_wc,
+            self._pose[:2, 3],
+            obs["depth"],
+            p.intr,
+            self.slam.obstacle_points_world() if rebuild else None,
+        )
+        self._steps += 1
+        return WorldStep(self._pose, fr.success, fr.revisit_accepted, fr.track_ms, fr.map_ms)
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self._pose
+
+    @property
+    def topology(self) -> TopoMap:
+        return self.slam.topo
+
+    @property
+    def current_frame_id(self) -> int:
+        return self.slam.current_frame_id
+
+    def counters(self) -> dict[str, int]:
+        s = self.slam.stats()
+        return {
+            "track_failures": s["track_failures"],
+            "revisits": s["revisits_accepted"],
+            "local_frames": s["local_frames"],
+            "map_frames_skipped": s["map_frames_skipped"],
+            "carved_points": s["carved_points"],
+        }
+
+    def debug(self) -> dict[str, Any]:
+        return self.slam.debug()
