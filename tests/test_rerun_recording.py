@@ -62,12 +62,17 @@ def unmatched(entities: list[str], pats: dict[str, re.Pattern]) -> list[str]:
     return [e for e in entities if not any(p.match(e) for p in pats.values())]
 
 
-def assert_inside(path: Path, bounds: tuple[float, float, float, float], margin: float) -> None:
-    """Every world/ position of the recording lies inside the bounds (x0, y0, x1, y1)."""
+def assert_inside(
+    path: Path, bounds: tuple[float, float, float, float], margin: float, skip: tuple = ()
+) -> None:
+    """Every world/ position of the recording (entities in ``skip`` aside) lies inside the
+    bounds (x0, y0, x1, y1) widened by ``margin``."""
     x0, y0, x1, y1 = bounds
     out = []
     for e, rows in world_positions(path).items():
         assert e.startswith("world/"), e
+        if e in skip:
+            continue
         P = np.concatenate([p for _, p in rows])
         ok = (
             (P[:, 0] >= x0 - margin)
@@ -194,6 +199,35 @@ def test_oracle_recording_has_entities_and_steps(tmp_path: Path) -> None:
     assert_inside(rrd, bounds, margin=0.1)
     views = blueprint_views(rrd)
     assert sorted(v[0] for v in views) == ["2D", "2D", "3D", "TimeSeries"], views
+
+
+def test_simn_recording_in_world_frame(tmp_path: Path) -> None:
+    """A SLAM agent's recording: the topological map's arcs end on its nodes and everything it
+    reports in its start frame lands inside the building (the planner tree excepted: RRT*
+    samples unknown space, which reaches beyond the outer walls)."""
+    spec = next(
+        e
+        for e in EpisodeSet.load(regression_episode_file()).episodes
+        if e.episode_id == "reg-ref-000"
+    )
+    env_cfg = resolve_env_config("SimnOffice-v0", {"width": 160, "height": 120})
+    env = make_env("SimnOffice-v0", env_cfg)
+    rrd = tmp_path / "simn.rrd"
+    try:
+        rec = run_episode(
+            "SimnOffice-v0", env_cfg, "simn", {}, episode=spec.to_dict(), rerun_path=rrd, env=env
+        )
+        bounds = env.unwrapped.layout.bounds
+    finally:
+        env.close()
+    assert rec["error"] is None, rec["error"]
+    s = read_recording(rrd)
+    assert {"world/topo/nodes", "world/topo/arcs", "world/trajectory/estimated"} <= set(
+        s.entity_paths
+    )
+    assert not unmatched(s.entity_paths, readme_entity_patterns())
+    assert assert_arcs_on_nodes(rrd) > 0
+    assert_inside(rrd, bounds, margin=0.1, skip=("world/planner/tree",))
 
 
 # ----------------------------------------------------------------- hand-made agent debug data
