@@ -1,4 +1,5 @@
-"""simn agent pieces that can be checked exactly: free-space carving, labels, config errors."""
+"""simn agent pieces that can be checked exactly: free-space carving, the world models' planner
+interface, shadows, config errors."""
 
 from __future__ import annotations
 
@@ -8,11 +9,10 @@ import pytest
 
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
-from simn_sim.agents.simn import label_points_world, strided
 from simn_sim.config import ConfigError
-from simn_sim.geometry.camera import backproject
-from simn_sim.geometry.se3 import transform_points
-from simn_sim.semantics import FLOOR, OBSTACLE
+from simn_sim.geometry.se3 import inv_T, transform_points
+from simn_sim.planning import CollisionChecker
+from simn_sim.world import OdometryWorld, SlamWorld
 
 
 @pytest.fixture(scope="module")
@@ -22,43 +22,72 @@ def env():
     e.close()
 
 
-def test_labels_floor_obstacle_unknown():
-    p = np.array([[0, 0, 0.01], [0, 0, -0.03], [0, 0, 0.5], [0, 0, 1.4], [0, 0, 0.07]])
-    lab = label_points_world(p, 0.06, 1.0)
-    assert lab.tolist() == [FLOOR, FLOOR, OBSTACLE, 0, OBSTACLE]
-    # a per-point tolerance (range-dependent) turns the last point into floor
-    lab2 = label_points_world(p, np.array([0.06] * 4 + [0.1]), 1.0)
-    assert lab2[-1] == FLOOR
-
-
 def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
     obs, info = env.reset(seed=0)
-    agent = make_agent("simn", env.unwrapped, {"carve": True})
+    agent = make_agent("simn", env.unwrapped)
     agent.reset(obs, info)
-    T_wc = agent.T_base_est @ agent.T_base_cam
-    d, intr = strided(obs["depth"], agent.intr, agent.cfg.obstacle_stride)
-    P = backproject(d, intr)
-    v, u = d.shape[0] // 2, d.shape[1] // 2
-    z = float(d[v, u])
+    world = agent.world
+    frames = world.slam.frames
+    frame = world.slam.perception(obs["rgb"], obs["depth"])
+    T_wc = world.pose @ world.T_base_cam
+    h, w = frame.depth.shape
+    v, u = h // 2, w // 2
+    z = float(frame.depth[v, u])
     assert z > 0.8
-    ray = P[v, u] / z
-    ghost = transform_points(
-        T_wc, (ray * (z - 0.5))[None].astype(np.float64)
-    )  # in front of the surface
-    hidden = transform_points(T_wc, (ray * (z + 0.5))[None].astype(np.float64))  # behind it
-    agent._obst_store = np.concatenate([ghost, hidden])
-    agent._carve_and_store(d, intr, T_wc, np.zeros((0, 3)))
-    assert agent.carved_points == 1
-    np.testing.assert_allclose(agent._obst_store, hidden)
+    k = int(np.flatnonzero((frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride))[0])
+    ray = frame.points[k] / z
+    T_anchor_cam = inv_T(frames.topo.anchor(frames.current_id)) @ T_wc
+    ghost = transform_points(T_anchor_cam, (ray * (z - 0.5))[None].astype(np.float64))  # in front
+    hidden = transform_points(T_anchor_cam, (ray * (z + 0.5))[None].astype(np.float64))  # behind
+    for st in frames.states.values():  # only the two test points in the stores
+        st.obstacles.remove(np.ones(len(st.obstacles), bool))
+    frames.current.obstacles.add(np.concatenate([ghost, hidden]))
+    assert frames.carve(frame, T_wc) == 1
+    np.testing.assert_allclose(frames.current.obstacles.points, hidden, atol=1e-6)
+
+
+@pytest.mark.parametrize("pose_source,world_type", [("slam", SlamWorld), ("odometry", OdometryWorld)])
+def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, world_type):
+    """Both world models give the agent a pose, a topological map and an ObstacleMap whose
+    planning / safety models are CollisionCheckers holding the wall the camera sees."""
+    obs, info = env.reset(seed=0)
+    agent = make_agent("simn", env.unwrapped, {"pose_source": pose_source, "initial_scan_deg": 0.0})
+    agent.reset(obs, info)
+    world = agent.world
+    assert isinstance(world, world_type)
+    for _ in range(3):
+        obs, *_ = env.step(agent.act(obs))
+    assert world.pose.shape == (4, 4) and np.isfinite(world.pose).all()
+    assert world.current_frame_id >= 0 and world.current_frame_id in world.topology.frame_ids
+    for model in (world.obstacles.planning, world.obstacles.safety):
+        assert isinstance(model, CollisionChecker)
+    # the local frames' stored obstacle points are obstacles of the planning model (within the
+    # occupancy grid's cell)
+    frames = world.slam.frames if pose_source == "slam" else world.frames
+    obst = frames.obstacle_points_world()
+    assert len(obst) > 100
+    res = agent.cfg.obstacles.collision.resolution
+    assert float(world.obstacles.planning.clearance(obst[:, :2]).max()) < res
+    assert isinstance(world.obstacles.shadow_model(), CollisionChecker)
+    assert set(agent.counters()) >= {"plan_failures", "fallback_plans", "bumps", "local_frames"}
 
 
 def test_bad_agent_config_is_rejected(env):
-    with pytest.raises(ConfigError, match="obstacle_stride"):
-        make_agent("simn", env.unwrapped, {"obstacle_stride": 0})
+    with pytest.raises(ConfigError, match="rebuild_every"):
+        make_agent("simn", env.unwrapped, {"obstacles": {"rebuild_every": 0}})
     with pytest.raises(ConfigError, match="unknown config key"):
         make_agent("simn", env.unwrapped, {"plnner": "uniform"})
     with pytest.raises(ConfigError, match="planner"):
         make_agent("simn", env.unwrapped, {"planner": "astar"})
+
+
+def test_old_agent_config_keys_fail_naming_their_new_place(env):
+    with pytest.raises(ConfigError, match=r"'carve_margin' -> slam.stores.carve_margin"):
+        make_agent("simn", env.unwrapped, {"carve_margin": 0.1})
+    with pytest.raises(ConfigError, match=r"'shadow_depth' -> obstacles.shadow_depth"):
+        make_agent("simn", env.unwrapped, {"shadow_depth": 0.3})
+    with pytest.raises(ConfigError, match=r"'describe_max_points' -> 'descriptor.max_points'"):
+        make_agent("simn", env.unwrapped, {"slam": {"describe_max_points": 10}})
 
 
 def test_simn_act_is_within_bounds_and_never_reads_true_pose(env):
@@ -104,7 +133,7 @@ def test_initial_scan_maps_what_stands_behind_the_start(scan):
         obs, _, _, _, info = e.step(a)
     # the cube's centre in the agent's (start) frame: 1.8 m behind the robot
     cube_xy = np.array([[-1.8, 0.0]])
-    clearance = float(agent.checker.clearance(cube_xy)[0])
+    clearance = float(agent.obstacles.planning.clearance(cube_xy)[0])
     if scan:
         assert clearance < 0.1  # its faces (0.3 m from the centre) are in the collision model
         assert np.hypot(*(info["T_world_base"][:2, 3] - [6.0, 4.0])) < 0.02  # no translation
@@ -147,50 +176,50 @@ def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_
     from simn_sim.planning.smoothing import push_from_obstacles
 
     # one view of the chair from 1.2 m
-    e, agent = _one_view(_room_with_chair_ahead(), {"shadow_depth": shadow_depth})
+    e, agent = _one_view(_room_with_chair_ahead(), {"obstacles": {"shadow_depth": shadow_depth}})
     # agent (start) frame: the back's visible face at x = 1.1875, the seat x in [1.2125, 1.6525],
     # |y| <= 0.22; the back is mapped, the seat is not
-    assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
+    assert float(agent.obstacles.planning.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
     # a path across the room 0.15 m behind the seat: free under the seen obstacles (0.61 m
     # from the back) though a robot on it (radius 0.25) hits the seat
     path = np.array([[1.8, -1.5], [1.8, 1.5]])
-    assert agent.checker.path_free(path)
+    assert agent.obstacles.planning.path_free(path)
     pushed = push_from_obstacles(
-        path, agent.checker, agent.cfg.path_clearance, also_from=agent._shadow_model()
+        path, agent.obstacles.planning, agent.cfg.path_clearance, also_from=agent.obstacles.shadow_model()
     )
-    assert agent.checker.path_free(pushed)  # shadows never make a plan unfree
+    assert agent.obstacles.planning.path_free(pushed)  # shadows never make a plan unfree
     dx = np.maximum(np.abs(pushed[:, 0] - 1.4325) - 0.22, 0.0)
     dy = np.maximum(np.abs(pushed[:, 1]) - 0.22, 0.0)
     seat_dist = float(np.min(np.hypot(dx, dy)))  # exact distance to the seat's footprint
     if shadow_depth:
-        assert len(agent.shadow) > 0
-        assert seat_dist > agent.cfg.collision.robot_radius  # pushed clear of the hidden seat
+        assert len(agent.obstacles.shadow) > 0
+        assert seat_dist > agent.cfg.obstacles.collision.robot_radius  # pushed clear of the hidden seat
     else:
-        assert agent.shadow is None and agent.shadow_map is None
-        assert seat_dist < agent.cfg.collision.robot_radius  # would hit the seat
+        assert agent.obstacles.shadow is None and agent.obstacles.shadow_model() is None
+        assert seat_dist < agent.cfg.obstacles.collision.robot_radius  # would hit the seat
     e.close()
 
 
 def test_shadows_are_cast_only_within_shadow_range():
     # the back is 0.97 m from the camera: beyond 0.9 m
-    e, agent = _one_view(_room_with_chair_ahead(), {"shadow_range": 0.9})
-    assert float(agent.checker.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
-    assert len(agent.shadow) == 0
+    e, agent = _one_view(_room_with_chair_ahead(), {"obstacles": {"shadow_range": 0.9}})
+    assert float(agent.obstacles.planning.clearance(np.array([[1.2, 0.0]]))[0]) < 0.06
+    assert len(agent.obstacles.shadow) == 0
     e.close()
 
 
 def test_shadow_config_is_validated(env):
     with pytest.raises(ConfigError, match="shadow_depth"):
-        make_agent("simn", env.unwrapped, {"shadow_depth": 0.01})
+        make_agent("simn", env.unwrapped, {"obstacles": {"shadow_depth": 0.01}})
     with pytest.raises(ConfigError, match="blind_shadow_depth"):
-        make_agent("simn", env.unwrapped, {"blind_shadow_depth": 0.01})
+        make_agent("simn", env.unwrapped, {"obstacles": {"blind_shadow_depth": 0.01}})
     # the SLAM preset's revisit settings, passed through the agent config
     for key, bad in [
         ("revisit_min_overlap", 1.5),
         ("revisit_registrations_per_frame", -1),
-        ("describe_max_points", -1),
+        ("descriptor", {"max_points": -1}),
     ]:
-        with pytest.raises(ConfigError, match=key):
+        with pytest.raises(ConfigError, match=key if key != "descriptor" else "max_points"):
             make_agent("simn", env.unwrapped, {"slam": {key: bad}}).reset(*env.reset(seed=0))
 
 
@@ -211,17 +240,17 @@ def _room_with_low_box_ahead():
 
 @pytest.mark.parametrize("blind", [0.0, 0.6])
 def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
-    e, agent = _one_view(_room_with_low_box_ahead(), {"blind_shadow_depth": blind})
+    e, agent = _one_view(_room_with_low_box_ahead(), {"obstacles": {"blind_shadow_depth": blind}})
     # start frame: the box x in [0.55, 1.0], |y| <= 0.3; only x >= 0.874 is in view
-    assert float(agent.checker.clearance(np.array([[0.95, 0.0]]))[0]) < 0.06
-    assert float(agent.checker.clearance(np.array([[0.6, 0.0]]))[0]) > 0.2  # unseen part
+    assert float(agent.obstacles.planning.clearance(np.array([[0.95, 0.0]]))[0]) < 0.06
+    assert float(agent.obstacles.planning.clearance(np.array([[0.6, 0.0]]))[0]) > 0.2  # unseen part
     gx, gy = np.meshgrid(np.arange(0.575, 0.85, 0.05), np.arange(-0.125, 0.13, 0.05))
     hidden = np.stack([gx.ravel(), gy.ravel()], 1)  # the hidden part, in the seen columns
-    in_shadow = agent.shadow_map.clearance(hidden) < 1e-6
+    in_shadow = agent.obstacles.shadow_model().clearance(hidden) < 1e-6
     if blind:
         assert in_shadow.mean() > 0.9
         # the robot's own footprint is known free: no shadow there
-        assert float(agent.shadow_map.clearance(np.array([[0.0, 0.0]]))[0]) > 0.2
+        assert float(agent.obstacles.shadow_model().clearance(np.array([[0.0, 0.0]]))[0]) > 0.2
     else:
         assert not in_shadow.any()
     e.close()

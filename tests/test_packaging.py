@@ -132,12 +132,7 @@ def test_wheel_without_extras_runs_the_demo_in_a_fresh_venv(tmp_path):
 REWRITE_IN_PROGRESS = ("simn_sim.slam", "simn_sim.agents.simn")
 #: Package cycles known and waiting for a change outside this test's reach; each entry says
 #: what removes it. The test fails when one is gone (drop it here) or a new one appears.
-KNOWN_PACKAGE_CYCLES: dict[frozenset[str], str] = {
-    frozenset({"simn_sim.io", "simn_sim.tracking"}): (
-        "io.tum uses tracking.lie.check_pose; tracking.odometry imports io.tum.TumFrame for a "
-        "type annotation only: move that import under `if TYPE_CHECKING:`"
-    ),
-}
+KNOWN_PACKAGE_CYCLES: dict[frozenset[str], str] = {}
 
 
 def _modules() -> dict[str, Path]:

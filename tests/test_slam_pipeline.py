@@ -49,7 +49,7 @@ def test_desk_ate_points_map(desk):
     cam = np.array([T[:3, 3] for _, T in slam.trajectory()])
     d = np.linalg.norm(obst[:, None, :2] - cam[None, :, :2], axis=2).min(axis=1)
     # depth is along the optical axis: the range at the image corner is ~1.2x larger
-    assert d.max() < 1.25 * slam.cfg.max_depth
+    assert d.max() < 1.25 * slam.cfg.perception.max_depth
     assert (outs[-1].labels == OBSTACLE).sum() == len(outs[-1].obstacle_points_world)
 
 
@@ -179,7 +179,7 @@ def test_free_space_carving_removes_stale_obstacles():
     T_base_cam[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical z = base x (forward)
     T_base_cam[2, 3] = 0.5
     for carve in (True, False):
-        slam = SimnSlam(SlamConfig(map_kind="points", carve=carve), intr, T_base_cam)
+        slam = SimnSlam(SlamConfig(map_kind="points", stores={"carve": carve}), intr, T_base_cam)
         prior = T_base_cam.copy()  # the robot stands still
         slam.process(0.0, *_synthetic_view(True), prior)
         near = np.linalg.norm(slam.obstacle_points_world()[:, :2], axis=1) < 2.0

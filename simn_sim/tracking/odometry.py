@@ -10,7 +10,10 @@ import numpy as np
 
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import inv_T
-from simn_sim.io.tum import TumFrame
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from simn_sim.io.tum import TumFrame
 from simn_sim.tracking.lie import check_pose
 from simn_sim.tracking.pointsdf import PointCloudSDF, voxel_downsample
 from simn_sim.tracking.registration import RegistrationConfig, RegistrationResult, register
