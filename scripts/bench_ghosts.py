@@ -1,7 +1,7 @@
 """Ghosts of moving people in the collision model, with and without free-space carving.
 
 In ``SimnOfficeDynamic-v0`` (4 people walking at 0.8-1.3 m/s) the ``simn`` agent runs seeded
-episodes with ``carve`` off and on. Every 25 steps and at the end, each occupied cell of the
+episodes with carving of the local frames' stores (``slam.stores.carve``) off and on. Every 25 steps and at the end, each occupied cell of the
 agent's collision model is mapped to the world with the true start pose (measurement only) and
 called a *ghost* when it is more than ``--static-margin`` from every true static obstacle and
 more than ``--person-margin`` from every person's current position: an obstacle that is no
@@ -24,7 +24,7 @@ from simn_sim.agents import make_agent
 
 def ghost_area(env, agent, T_world_start, static_margin: float, person_margin: float) -> float:
     u = env.unwrapped
-    c = agent.checker.occupied_centres()
+    c = agent.obstacles.planning.occupied_centres()
     if len(c) == 0:
         return 0.0
     w = c @ T_world_start[:2, :2].T + T_world_start[:2, 3]
@@ -37,7 +37,7 @@ def ghost_area(env, agent, T_world_start, static_margin: float, person_margin: f
         far_people = d > person_margin
     else:
         far_people = np.ones(len(w), bool)
-    res = agent.checker.cfg.resolution
+    res = agent.obstacles.planning.cfg.resolution
     return float(np.count_nonzero(far_static & far_people)) * res * res
 
 
@@ -55,7 +55,7 @@ def main() -> None:
         for i in range(a.episodes):
             obs, info = env.reset(seed=a.seed + i)
             T_ws = info["T_world_base"].copy()
-            agent = make_agent("simn", env.unwrapped, {"carve": carve})
+            agent = make_agent("simn", env.unwrapped, {"slam": {"stores": {"carve": carve}}})
             agent.reset(obs, info)
             areas = []
             step = 0
@@ -76,7 +76,7 @@ def main() -> None:
                     collisions_with_people=ep["collisions_with_people"],
                     ghost_m2_final=ghost_area(env, agent, T_ws, a.static_margin, a.person_margin),
                     ghost_m2_mean=float(np.mean(areas)) if areas else 0.0,
-                    carved_points=agent.carved_points,
+                    carved_points=agent.counters()["carved_points"],
                 )
             )
             print(json.dumps({"carve": carve, **rows[-1]}))

@@ -3,7 +3,7 @@
 Tracking error mixes two things: how good the map is, and how the registration and the
 prediction use it. This script separates the first. It runs :class:`~simn_sim.slam.SimnSlam` on
 a TUM folder with its ``groundtruth.txt`` as the prior and every registration rejected
-(``max_correction_m`` = 1e-9), so every local frame's maps (surface store, learned map) are built
+(``track_max_correction_m`` = 1e-9), so every local frame's maps (surface store, learned map) are built
 at the true poses. Every ``--every``-th frame, before it is integrated, its registration points are
 placed at their true pose in the current local frame and checked against the SDF that tracking
 would use (``SimnSlam._sdf_of``, per the config's ``track_sdf``):
@@ -36,7 +36,7 @@ from simn_sim.tracking.registration import register
 
 
 def evaluate(folder: Path, config: Path | None, every: int, start: int, cm: float, deg: float):
-    cfg = load_slam_config(config, max_correction_m=1e-9, revisits=False)
+    cfg = load_slam_config(config, track_max_correction_m=1e-9, revisits=False)
     seq = read_tum(folder)
     if seq[0].T_world_cam is None:
         raise SystemExit(f"{folder}: needs groundtruth.txt")
@@ -47,20 +47,20 @@ def evaluate(folder: Path, config: Path | None, every: int, start: int, cm: floa
         fr = seq[k]
         if k >= start and (k - start) % every == 0:
             fid = slam.current_frame_id
-            sdf = slam._sdf_of(fid)
+            sdf = slam.tracker.sdf_of(fid)
             if sdf is not None:
                 T_true = inv_T(slam.topo.anchor(fid)) @ fr.T_world_cam
-                obs = slam._perceive(fr.rgb, fr.depth)
-                pts = slam._track_points(obs["points"]).astype(np.float64)
+                frame = slam.perception(fr.rgb, fr.depth)
+                pts = slam.tracker.track_points(frame.points).astype(np.float64)
                 x = pts @ T_true[:3, :3].T + T_true[:3, 3]
                 s = np.asarray(sdf(x)[0], dtype=np.float64)
                 ok = np.isfinite(s)
-                at = register(pts, sdf, T_true, slam._track_reg)
-                slam._update_rms(at.final_rms)  # the running RMS the adaptive kernel uses
+                at = register(pts, sdf, T_true, slam.tracker.reg_cfg)
+                slam.tracker.update_rms(at.final_rms)  # the running RMS the adaptive kernel uses
                 xi = np.concatenate(
                     [rng.choice([-1, 1], 3) * np.radians(deg), rng.choice([-1, 1], 3) * cm / 100]
                 )
-                res = register(pts, sdf, T_true @ se3_exp(xi), slam._track_reg)
+                res = register(pts, sdf, T_true @ se3_exp(xi), slam.tracker.reg_cfg)
                 et, er = pose_error(T_true, res.pose)
                 rows.append(
                     (np.median(np.abs(s[ok])), ok.mean(), et, np.degrees(er), res.iterations)

@@ -22,9 +22,22 @@ class Agent(Protocol):
 
     def act(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> np.ndarray: ...
 
-    def debug(self) -> dict[str, Any]: ...
+    def debug(self) -> dict[str, Any]:
+        """What the rerun recorder draws (``"frame": "start"``: in the agent's own frame)."""
+        ...
 
-    def config_dict(self) -> dict[str, Any]: ...
+    def config_dict(self) -> dict[str, Any]:
+        """The resolved config, written beside every result."""
+        ...
+
+    def state(self) -> str:
+        """A short status, e.g. ``"following"``, ``"no_plan"``, ``"recovering"``."""
+        ...
+
+    def counters(self) -> dict[str, int]:
+        """Fallbacks and events of the episode so far (plan failures, grid fallbacks, bumps,
+        tracking failures, revisits, ...); the runner copies them into the episode record."""
+        ...
 
 
 _REGISTRY: dict[str, Callable[..., Agent]] = {}

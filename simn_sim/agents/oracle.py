@@ -111,6 +111,9 @@ class OracleAgent:
     def state(self) -> str:
         return self._state
 
+    def counters(self) -> dict[str, int]:
+        return {}  # true map and pose: no fallbacks
+
     def debug(self) -> dict[str, Any]:
         return {"path": getattr(self, "path", None), "plan_ms": self._plan_ms}
 

@@ -159,12 +159,8 @@ def run_episode(
         rec["map_ms_median"] = float(np.median(map_ms)) if map_ms else None
         rec["control_ms_median"] = float(np.median(ctl_ms)) if ctl_ms else None
         rec["ate_rmse_m"] = _ate_rmse(true_xy, est_xy)
-        agent_state = getattr(agent, "state", None)
-        if callable(agent_state):
-            rec["agent_state"] = agent_state()
-        counters = getattr(agent, "counters", None)
-        if callable(counters):
-            rec.update(counters())
+        rec["agent_state"] = agent.state()
+        rec.update(agent.counters())
     except Exception as e:  # noqa: BLE001 - a failing episode is recorded, never fatal
         rec["error"] = f"{type(e).__name__}: {e}\n{traceback.format_exc()}"
         rec["termination"] = "error"
