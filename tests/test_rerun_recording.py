@@ -375,16 +375,20 @@ def test_recorder_without_or_with_old_local_frames(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ the demo's CLI
-def test_demo_out_is_an_existing_file(tmp_path: Path, capsys) -> None:
+@pytest.mark.parametrize("below", ["", "sub"])
+def test_demo_out_is_an_existing_file(tmp_path: Path, capsys, below: str) -> None:
+    """``--out`` naming an existing file (or a folder below one): a one-line error naming the
+    path, exit code 2, the file untouched."""
     from simn_sim.cli import main as cli_main
 
     f = tmp_path / "taken"
     f.write_text("x")
-    rc = cli_main(["demo", "--out", str(f), "--agent", "oracle"])
+    out = f / below if below else f
+    rc = cli_main(["demo", "--out", str(out), "--agent", "oracle"])
     err = capsys.readouterr().err
-    assert rc != 0
-    assert str(f) in err and "not a directory" in err
-    assert "Traceback" not in err
+    assert rc == 2
+    assert str(out) in err and "Traceback" not in err
+    assert "not a directory" in err.lower()
     assert f.read_text() == "x"
 
 
