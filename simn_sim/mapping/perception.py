@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.camera import Intrinsics, pixel_rays
 from simn_sim.geometry.voxel import voxel_mean
 from simn_sim.mapping.config import PerceptionConfig
 from simn_sim.semantics import estimate_normals as semantic_normals
@@ -83,7 +83,6 @@ def rgbd_to_points(
 
     s = cfg.pixel_stride
     z = depth[::s, ::s].astype(np.float32) * np.float32(cfg.depth_scale)
-    v, u = np.mgrid[0:h:s, 0:w:s]
     ok = np.isfinite(z) & (z >= cfg.min_depth) & (z <= cfg.max_depth) & (z > 0)
     n_invalid = int(ok.size - np.count_nonzero(ok))
     if not ok.any():
@@ -91,10 +90,9 @@ def rgbd_to_points(
             f"all {ok.size} depth values are invalid (0, NaN/inf or outside "
             f"[{cfg.min_depth}, {cfg.max_depth}] m)"
         )
+    rx, ry = pixel_rays(intr, s)  # the loop's one ray model (perception.Frame uses it too)
     zv = z[ok]
-    x = (u[ok].astype(np.float32) - np.float32(intr.cx)) * zv / np.float32(intr.fx)
-    y = (v[ok].astype(np.float32) - np.float32(intr.cy)) * zv / np.float32(intr.fy)
-    pts = np.stack([x, y, zv], axis=1)
+    pts = np.stack([rx[ok] * zv, ry[ok] * zv, zv], axis=1)
     if rgb is None:
         cols = np.full((pts.shape[0], 3), 0.5, np.float32)
     else:

@@ -226,6 +226,22 @@ class SlamConfig(Config):
 
     def validate(self) -> None:
         n = type(self).__name__
+        # the standalone mapper's own perception and training schedule are not used by the
+        # front-end (it perceives once per frame with ``perception`` and trains per
+        # ``open_train_iters`` / ``train_iters`` / ``train_every``): setting them is an error
+        default = MapperConfig()
+        require(
+            self.mapper.perception == default.perception,
+            n,
+            "mapper.perception",
+            "is not used by the front-end; set SlamConfig.perception instead",
+        )
+        require(
+            self.mapper.training.train_every == default.training.train_every,
+            n,
+            "mapper.training.train_every",
+            "is not used by the front-end; set SlamConfig.train_every instead",
+        )
         require(
             not (self.track_sdf == "implicit" and self.map_kind == "points"),
             n,
