@@ -254,3 +254,30 @@ def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
     else:
         assert not in_shadow.any()
     e.close()
+
+
+@pytest.mark.parametrize(
+    "agent_cfg,expected",
+    [
+        ({}, "points"),
+        ({"slam": {"map_kind": "implicit", "track_sdf": "implicit"}}, "learned"),
+        ({"pose_source": "odometry"}, None),
+    ],
+)
+def test_tracking_map_is_reported(env, agent_cfg, expected):
+    obs, info = env.reset(seed=0)
+    agent = make_agent("simn", env.unwrapped, agent_cfg)
+    agent.reset(obs, info)
+    assert agent.debug()["tracking_map"] == expected
+
+
+def test_episode_record_has_act_timing_and_tracking_map():
+    from simn_sim.experiments.runner import run_episode
+
+    rec = run_episode(
+        "SimnOffice-v0", {"width": 160, "height": 120, "max_episode_steps": 5}, "simn", {}, seed=3
+    )
+    assert rec["error"] is None, rec["error"]
+    assert rec["steps"] == 5 and rec["tracking_map"] == "points"
+    assert 0 < rec["act_ms_mean"] <= rec["act_ms_p95"] * 5
+    assert rec["act_ms_p95"] > 0

@@ -50,6 +50,7 @@ def test_slam_cli_outputs(seq, tmp_path):
               "ate_rmse_m", "rpe"):  # fmt: skip
         assert k in m, k
     assert m["frames"] == 12 and m["local_frames"] >= 1
+    assert m["tracking_map"] == "points"  # the default front-end tracks on the surface store
     assert 0 <= m["ate_rmse_m"] < 0.01
     c = json.loads((out / "config.json").read_text())
     assert c["map_kind"] == "points" and c["trigger"]["max_travel_m"] == 0.1

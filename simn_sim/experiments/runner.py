@@ -42,6 +42,9 @@ RECORD_FIELDS = (
     "plan_ms_p95",
     "map_ms_median",
     "control_ms_median",
+    "act_ms_mean",
+    "act_ms_p95",
+    "tracking_map",
     "ate_rmse_m",
     "error",
 )
@@ -158,6 +161,11 @@ def run_episode(
         rec["plan_ms_p95"] = float(np.percentile(plan_ms, 95)) if plan_ms else None
         rec["map_ms_median"] = float(np.median(map_ms)) if map_ms else None
         rec["control_ms_median"] = float(np.median(ctl_ms)) if ctl_ms else None
+        # time per act() call (the whole control step: world model, planning, control)
+        rec["act_ms_mean"] = float(np.mean(ctl_ms)) if ctl_ms else None
+        rec["act_ms_p95"] = float(np.percentile(ctl_ms, 95)) if ctl_ms else None
+        # which map the pose was tracked against ("points", "learned"; None: no tracking)
+        rec["tracking_map"] = agent.debug().get("tracking_map")
         rec["ate_rmse_m"] = _ate_rmse(true_xy, est_xy)
         rec["agent_state"] = agent.state()
         rec.update(agent.counters())

@@ -297,8 +297,15 @@ class SimnSlam:
             return [(t, topo.anchor(f) @ T) for t, f, T, _ in self._records]
         return [(t, Tw.copy()) for t, _, _, Tw in self._records]
 
+    @property
+    def tracking_map(self) -> str:
+        """Which map frames are registered against: ``"learned"`` (the local frame's implicit
+        map) or ``"points"`` (its surface point store)."""
+        return "learned" if self.cfg.track_sdf == "implicit" else "points"
+
     def stats(self) -> dict[str, Any]:
         return {
+            "tracking_map": self.tracking_map,
             "frames": self.n_frames,
             "local_frames": len(self.frames),
             "revisits_accepted": self.n_revisits,

@@ -86,4 +86,5 @@ class OdometryWorld:
         return {
             "local_frames": self.frames.debug(),
             "T_world_base_est": self._pose,
+            "tracking_map": None,  # the odometry pose is not tracked against a map
         }

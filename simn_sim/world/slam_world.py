@@ -77,4 +77,6 @@ class SlamWorld:
         }
 
     def debug(self) -> dict[str, Any]:
-        return self.slam.debug()
+        d = self.slam.debug()
+        d["tracking_map"] = self.slam.tracking_map
+        return d
