@@ -1,94 +1,14 @@
-"""Analytic test scenes: a box room with boxes and spheres, exact SDF and ray-cast depth.
-
-Used by the mapping tests and benchmark (and usable by anyone needing exact geometry). The room
-is a hollow box: free space inside (positive SDF), solid outside. Boxes and spheres are solid.
-"""
+"""Analytic test scenes for mapping: a box room with boxes and spheres (exact SDF and ray-cast
+depth from :mod:`simn_sim.geometry.analytic`) and camera orbits."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from simn_sim.geometry.camera import Intrinsics
+from simn_sim.geometry.analytic import AnalyticScene, Box, Sphere, box_sdf
 from simn_sim.tracking.synthetic import look_at
 
 __all__ = ["AnalyticScene", "Box", "Sphere", "box_room_scene", "box_sdf", "look_at", "orbit_poses"]
-
-
-@dataclasses.dataclass(frozen=True)
-class Box:
-    center: tuple[float, float, float]
-    half: tuple[float, float, float]
-
-
-@dataclasses.dataclass(frozen=True)
-class Sphere:
-    center: tuple[float, float, float]
-    radius: float
-
-
-def box_sdf(points: np.ndarray, box: Box) -> np.ndarray:
-    q = np.abs(points - np.asarray(box.center)) - np.asarray(box.half)
-    outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
-    inside = np.minimum(q.max(axis=1), 0.0)
-    return outside + inside
-
-
-@dataclasses.dataclass(frozen=True)
-class AnalyticScene:
-    room: Box
-    boxes: tuple[Box, ...] = ()
-    spheres: tuple[Sphere, ...] = ()
-
-    def sdf(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) world points -> (N,) float64 exact signed distance (positive in free space)."""
-        p = np.asarray(points, np.float64)
-        d = -box_sdf(p, self.room)
-        for b in self.boxes:
-            d = np.minimum(d, box_sdf(p, b))
-        for s in self.spheres:
-            d = np.minimum(d, np.linalg.norm(p - np.asarray(s.center), axis=1) - s.radius)
-        return d
-
-    def raycast(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """Ray parameter ``t`` of the first hit of ``o + t d`` (origins inside the room)."""
-        o = np.broadcast_to(np.asarray(origins, np.float64), dirs.shape)
-        d = np.asarray(dirs, np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / d
-            lo = np.asarray(self.room.center) - np.asarray(self.room.half)
-            hi = np.asarray(self.room.center) + np.asarray(self.room.half)
-            t = np.max(np.stack([(lo - o) * inv, (hi - o) * inv]), axis=0).min(axis=1)
-            for b in self.boxes:
-                blo = np.asarray(b.center) - np.asarray(b.half)
-                bhi = np.asarray(b.center) + np.asarray(b.half)
-                t1, t2 = (blo - o) * inv, (bhi - o) * inv
-                tn = np.minimum(t1, t2).max(axis=1)
-                tf = np.maximum(t1, t2).min(axis=1)
-                hit = (tn <= tf) & (tn > 0)
-                t = np.where(hit & (tn < t), tn, t)
-            for s in self.spheres:
-                oc = o - np.asarray(s.center)
-                a = (d * d).sum(1)
-                bq = (oc * d).sum(1)
-                c = (oc * oc).sum(1) - s.radius**2
-                disc = bq * bq - a * c
-                th = (-bq - np.sqrt(np.maximum(disc, 0.0))) / a
-                hit = (disc >= 0) & (th > 0)
-                t = np.where(hit & (th < t), th, t)
-        return t
-
-    def render_depth(self, intr: Intrinsics, T_world_cam: np.ndarray) -> np.ndarray:
-        """(H, W) float32 depth (z in the OpenCV camera frame) by exact ray casting."""
-        v, u = np.mgrid[0 : intr.height, 0 : intr.width]
-        d_cam = np.stack(
-            [(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u, dtype=np.float64)],
-            -1,
-        ).reshape(-1, 3)
-        d_world = d_cam @ T_world_cam[:3, :3].T  # z component 1 in the camera: t is depth
-        t = self.raycast(T_world_cam[:3, 3], d_world)
-        return t.reshape(intr.height, intr.width).astype(np.float32)
 
 
 def box_room_scene() -> AnalyticScene:

@@ -1,84 +1,28 @@
-"""Analytic signed-distance scenes for testing registration and loop closure without a learned map.
+"""Analytic scenes for testing registration and loop closure without a learned map.
 
-A scene is a union of primitives: an optional *room* (the free space inside an axis-aligned box,
-SDF positive inside), solid axis-aligned boxes, spheres and half-spaces (planes). For points in
-free space the SDF is the exact Euclidean distance to the nearest surface; the gradient is the
-analytic gradient of the closest primitive. ``render_points`` casts camera rays by sphere tracing
-to produce the surface points a depth camera would see.
+The scenes are :class:`~simn_sim.geometry.analytic.AnalyticScene` s (exact SDF, gradient and
+ray casting); ``render_points`` casts camera rays to produce the surface points a depth camera
+would see.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
+from simn_sim.geometry.analytic import AnalyticScene, ray_cast
 from simn_sim.geometry.se3 import transform_points
 
-
-def _box_sdf(p: np.ndarray, c: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact SDF of a solid box (centre c, half extents h) and its gradient. p: (N, 3)."""
-    d = p - c
-    s = np.where(d >= 0, 1.0, -1.0)
-    q = np.abs(d) - h
-    qp = np.maximum(q, 0.0)
-    out_norm = np.linalg.norm(qp, axis=1)
-    k = np.argmax(q, axis=1)
-    qmax = q[np.arange(len(q)), k]
-    sdf = out_norm + np.minimum(qmax, 0.0)
-    grad_out = s * qp / np.maximum(out_norm, 1e-12)[:, None]
-    grad_in = np.zeros_like(p)
-    grad_in[np.arange(len(p)), k] = s[np.arange(len(p)), k]
-    outside = (qmax > 0)[:, None]
-    return sdf, np.where(outside, grad_out, grad_in)
-
-
-@dataclasses.dataclass(frozen=True)
-class AnalyticScene:
-    """Union of primitives in world coordinates (metres).
-
-    room: (centre (3,), half extents (3,)) or None -- free space inside, walls/floor/ceiling.
-    boxes: list of (centre, half extents) solid boxes. spheres: list of (centre, radius).
-    planes: list of (unit normal n, offset d): solid half-space ``n . p < d``, free ``n . p > d``.
-    """
-
-    room: tuple[np.ndarray, np.ndarray] | None = None
-    boxes: tuple = ()
-    spheres: tuple = ()
-    planes: tuple = ()
-
-    def sdf_and_grad(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(N, 3) world points -> SDF (N,) float64, gradient (N, 3) float64, valid (N,) bool."""
-        p = np.asarray(points, dtype=np.float64)
-        sdfs, grads = [], []
-        if self.room is not None:
-            c, h = (np.asarray(a, float) for a in self.room)
-            s, g = _box_sdf(p, c, h)
-            sdfs.append(-s)
-            grads.append(-g)
-        for c, h in self.boxes:
-            s, g = _box_sdf(p, np.asarray(c, float), np.asarray(h, float))
-            sdfs.append(s)
-            grads.append(g)
-        for c, r in self.spheres:
-            d = p - np.asarray(c, float)
-            n = np.linalg.norm(d, axis=1)
-            sdfs.append(n - r)
-            grads.append(d / np.maximum(n, 1e-12)[:, None])
-        for nrm, off in self.planes:
-            nrm = np.asarray(nrm, float) / np.linalg.norm(nrm)
-            sdfs.append(p @ nrm - off)
-            grads.append(np.broadcast_to(nrm, p.shape))
-        if not sdfs:
-            raise ValueError("AnalyticScene has no primitives")
-        S = np.stack(sdfs, axis=1)
-        k = np.argmin(S, axis=1)
-        idx = np.arange(len(p))
-        G = np.stack(grads, axis=1)
-        return S[idx, k], G[idx, k], np.ones(len(p), dtype=bool)
-
-    def sdf(self, points: np.ndarray) -> np.ndarray:
-        return self.sdf_and_grad(points)[0]
+__all__ = [
+    "AnalyticFrameMap",
+    "AnalyticScene",
+    "look_at",
+    "loop_scene",
+    "office_scene",
+    "plane_scene",
+    "ray_cast",
+    "render_points",
+    "world_points",
+]
 
 
 def office_scene() -> AnalyticScene:
@@ -117,45 +61,6 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     T[:3, :3] = np.stack([x, y, z], axis=1)
     T[:3, 3] = eye
     return T
-
-
-def _slab(e: np.ndarray, d: np.ndarray, c: np.ndarray, h: np.ndarray):
-    """Entry and exit ray parameters of an axis-aligned box (slab method), each (N,)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t1 = (c - h - e) * inv
-        t2 = (c + h - e) * inv
-    t1 = np.where(np.isnan(t1), -np.inf, t1)
-    t2 = np.where(np.isnan(t2), np.inf, t2)
-    return np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
-
-
-def ray_cast(scene: AnalyticScene, e: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """First hit distance along unit rays ``e + t d`` (e: (3,), d: (N, 3)); inf for no hit.
-
-    Exact (analytic intersection with every primitive); the origin must be in free space.
-    """
-    t = np.full(len(d), np.inf)
-    if scene.room is not None:
-        c, h = (np.asarray(a, float) for a in scene.room)
-        _, tf = _slab(e, d, c, h)
-        t = np.minimum(t, np.where(tf > 0, tf, np.inf))
-    for c, h in scene.boxes:
-        tn, tf = _slab(e, d, np.asarray(c, float), np.asarray(h, float))
-        t = np.minimum(t, np.where((tn <= tf) & (tn > 0), tn, np.inf))
-    for c, r in scene.spheres:
-        oc = e - np.asarray(c, float)
-        b = d @ oc
-        disc = b * b - (oc @ oc - r * r)
-        root = -b - np.sqrt(np.maximum(disc, 0.0))
-        t = np.minimum(t, np.where((disc >= 0) & (root > 0), root, np.inf))
-    for nrm, off in scene.planes:
-        nrm = np.asarray(nrm, float) / np.linalg.norm(nrm)
-        dn = d @ nrm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tp = (off - e @ nrm) / dn
-        t = np.minimum(t, np.where((dn < 0) & (tp > 0), tp, np.inf))
-    return t
 
 
 def render_points(
