@@ -34,7 +34,11 @@ def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
     v, u = h // 2, w // 2
     z = float(frame.depth[v, u])
     assert z > 0.8
-    k = int(np.flatnonzero((frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride))[0])
+    k = int(
+        np.flatnonzero(
+            (frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride)
+        )[0]
+    )
     ray = frame.points[k] / z
     T_anchor_cam = inv_T(frames.topo.anchor(frames.current_id)) @ T_wc
     ghost = transform_points(T_anchor_cam, (ray * (z - 0.5))[None].astype(np.float64))  # in front
@@ -46,7 +50,9 @@ def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
     np.testing.assert_allclose(frames.current.obstacles.points, hidden, atol=1e-6)
 
 
-@pytest.mark.parametrize("pose_source,world_type", [("slam", SlamWorld), ("odometry", OdometryWorld)])
+@pytest.mark.parametrize(
+    "pose_source,world_type", [("slam", SlamWorld), ("odometry", OdometryWorld)]
+)
 def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, world_type):
     """Both world models give the agent a pose, a topological map and an ObstacleMap whose
     planning / safety models are CollisionCheckers holding the wall the camera sees."""
@@ -185,7 +191,10 @@ def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_
     path = np.array([[1.8, -1.5], [1.8, 1.5]])
     assert agent.obstacles.planning.path_free(path)
     pushed = push_from_obstacles(
-        path, agent.obstacles.planning, agent.cfg.path_clearance, also_from=agent.obstacles.shadow_model()
+        path,
+        agent.obstacles.planning,
+        agent.cfg.path_clearance,
+        also_from=agent.obstacles.shadow_model(),
     )
     assert agent.obstacles.planning.path_free(pushed)  # shadows never make a plan unfree
     dx = np.maximum(np.abs(pushed[:, 0] - 1.4325) - 0.22, 0.0)
@@ -193,7 +202,9 @@ def test_occlusion_shadow_pushes_plans_off_a_seat_hidden_behind_its_back(shadow_
     seat_dist = float(np.min(np.hypot(dx, dy)))  # exact distance to the seat's footprint
     if shadow_depth:
         assert len(agent.obstacles.shadow) > 0
-        assert seat_dist > agent.cfg.obstacles.collision.robot_radius  # pushed clear of the hidden seat
+        assert (
+            seat_dist > agent.cfg.obstacles.collision.robot_radius
+        )  # pushed clear of the hidden seat
     else:
         assert agent.obstacles.shadow is None and agent.obstacles.shadow_model() is None
         assert seat_dist < agent.cfg.obstacles.collision.robot_radius  # would hit the seat

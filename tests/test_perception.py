@@ -18,7 +18,9 @@ def test_frame_backprojects_a_rendered_wall_within_1mm(stride):
     ep = {"episode_id": "w", "layout_seed": None, "start": [16.9, 7.0, 0.0], "goal": [3.0, 3.0]}
     obs, info = e.reset(options={"episode": ep})
     intr = e.camera_info.intrinsics
-    frame = Perception(intr, PerceptionConfig(stride=stride, max_depth=10.0))(obs["rgb"], obs["depth"])
+    frame = Perception(intr, PerceptionConfig(stride=stride, max_depth=10.0))(
+        obs["rgb"], obs["depth"]
+    )
     e.close()
     n_px = len(range(0, 240, stride)) * len(range(0, 320, stride))
     assert len(frame) + frame.n_invalid == n_px and frame.depth.shape == frame.valid.shape

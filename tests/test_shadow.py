@@ -4,8 +4,8 @@ camera that looks along +x, and depth images of planes at known distances."""
 import numpy as np
 import pytest
 
-from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 from simn_sim.geometry.camera import Intrinsics
+from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 
 # 200 x 200 px, 127 deg field of view: every sample near the plate is in view
 INTR = Intrinsics(200, 200, 50.0, 50.0, 99.5, 99.5)

@@ -39,7 +39,9 @@ class BumpDetector:
         return False
 
 
-def nearest_free(checker: CollisionChecker, p: np.ndarray, radius: float = 1.0) -> np.ndarray | None:
+def nearest_free(
+    checker: CollisionChecker, p: np.ndarray, radius: float = 1.0
+) -> np.ndarray | None:
     """The first free point on rings of 24 points every 0.1 m around ``p`` up to ``radius``."""
     ang = np.linspace(0, 2 * math.pi, 24, endpoint=False)
     for r in np.arange(0.1, radius + 1e-9, 0.1):

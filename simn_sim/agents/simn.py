@@ -241,7 +241,9 @@ class SimnAgent:
         if not (checker.is_free(start[None])[0] and checker.is_free(goal[None])[0]):
             return None
         if self.cfg.planner == "goal_vector":
-            planner = goal_vector_rrt_star(checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng)
+            planner = goal_vector_rrt_star(
+                checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng
+            )
         else:
             lo = np.minimum(xy, goal) - self.cfg.window
             hi = np.maximum(xy, goal) + self.cfg.window
@@ -249,7 +251,9 @@ class SimnAgent:
             if b is not None:
                 lo = np.minimum(lo, [b[0], b[1]])
                 hi = np.maximum(hi, [b[2], b[3]])
-            planner = uniform_rrt_star(checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng)
+            planner = uniform_rrt_star(
+                checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng
+            )
         planner.begin(start, goal)
         return PlanJob(planner, xy.copy(), start, goal)
 
@@ -359,7 +363,11 @@ class SimnAgent:
             self._state = "recovering"
             self.path = None
             target = nearest_free(checker, xy, radius=0.6)
-            return escape(pose, checker, w_max) if target is None else drive_to(pose, target, self.follower_cfg)
+            return (
+                escape(pose, checker, w_max)
+                if target is None
+                else drive_to(pose, target, self.follower_cfg)
+            )
         if self._scan_steps > 0:  # initial look-around (turning in place sweeps no new space)
             self._scan_steps -= 1
             self._state = "scanning"

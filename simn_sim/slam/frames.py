@@ -221,7 +221,10 @@ class LocalFrames:
 
     # ---- outputs -----------------------------------------------------------------------------
     def _world_points(self, which: str, cache: tuple | None) -> tuple[tuple, np.ndarray]:
-        key = (self.anchors_version, *((f, getattr(s, which).version) for f, s in self.states.items()))
+        key = (
+            self.anchors_version,
+            *((f, getattr(s, which).version) for f, s in self.states.items()),
+        )
         if cache is not None and cache[0] == key:
             return cache
         parts = [
@@ -250,7 +253,10 @@ class LocalFrames:
         for f, s in self.states.items():
             P = np.concatenate([s.obstacles.points, s.floor.points])
             lab = np.concatenate(
-                [np.full(len(s.obstacles), OBSTACLE, np.int8), np.full(len(s.floor), FLOOR, np.int8)]
+                [
+                    np.full(len(s.obstacles), OBSTACLE, np.int8),
+                    np.full(len(s.floor), FLOOR, np.int8),
+                ]
             )
             out[f] = {
                 "T_anchor": self.topo.anchor(f),

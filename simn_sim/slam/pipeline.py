@@ -110,7 +110,9 @@ class SimnSlam:
         map_prior = cfg.map_kind == "implicit" and cfg.mapper.decoder.geometric_prior
         pc = cfg.perception.replace(
             map_normal_smooth_px=(
-                cfg.perception.map_normal_smooth_px if map_prior else cfg.perception.normal_smooth_px
+                cfg.perception.map_normal_smooth_px
+                if map_prior
+                else cfg.perception.normal_smooth_px
             )
         )
         self.perception = Perception(intrinsics, pc)

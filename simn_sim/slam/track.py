@@ -211,7 +211,10 @@ class Tracker:
             if res.eig_ratio < self.weak_eig_ratio:
                 reason = f"ok (weakly constrained, eigenvalue ratio {res.eig_ratio:.1e})"
         dt, dr = pose_error(T_pred, T_est)
-        if dt > self.cfg.track_max_correction_m or np.degrees(dr) > self.cfg.track_max_correction_deg:
+        if (
+            dt > self.cfg.track_max_correction_m
+            or np.degrees(dr) > self.cfg.track_max_correction_deg
+        ):
             why = f"correction {dt:.3f} m / {np.degrees(dr):.1f} deg beyond the budget"
             return TrackResult(T_pred, False, why, res.iterations, fid, res.final_rms)
         return TrackResult(T_est, True, reason, res.iterations, fid, res.final_rms)

@@ -5,12 +5,12 @@ real data; the SIMN agent registers to the local frame's learned map instead."""
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import inv_T
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from simn_sim.io.tum import TumFrame

@@ -16,12 +16,12 @@ import math
 
 import numpy as np
 
-from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.geometry.se3 import transform_points
 from simn_sim.planning import CollisionChecker, CollisionConfig
 from simn_sim.semantics import OBSTACLE
+from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,7 +50,12 @@ class ObstacleConfig(Config):
         require(self.rebuild_every >= 1, n, "rebuild_every", "must be >= 1")
         for f in ("shadow_depth", "blind_shadow_depth"):
             v = getattr(self, f)
-            require(v == 0 or v >= res, n, f, f"must be 0 (off) or >= the collision resolution ({res} m)")
+            require(
+                v == 0 or v >= res,
+                n,
+                f,
+                f"must be 0 (off) or >= the collision resolution ({res} m)",
+            )
         require(self.shadow_range > 0, n, "shadow_range", "must be > 0")
         require(self.shadow_edge_jump > 0, n, "shadow_edge_jump", "must be > 0")
 
@@ -63,7 +68,9 @@ class ObstacleMap:
         c = cfg.collision
         self.planning = CollisionChecker(c)
         self.safety = CollisionChecker(c.replace(margin=min(0.03, c.margin)))
-        self.shadow = OcclusionShadow(c.resolution, cfg.shadow_depth) if cfg.shadow_depth > 0 else None
+        self.shadow = (
+            OcclusionShadow(c.resolution, cfg.shadow_depth) if cfg.shadow_depth > 0 else None
+        )
         self._shadow_map = CollisionChecker(c) if self.shadow is not None else None
         self._shadow_dirty = False  # shadow cells were cleared since the shadow model was built
         self.bump_points: list[np.ndarray] = []
@@ -80,7 +87,11 @@ class ObstacleMap:
         """Both models anew from ``obstacle_points`` plus the bump points."""
         self.planning.reset()
         self.safety.reset()
-        pts = np.concatenate([obstacle_points, *self.bump_points]) if self.bump_points else obstacle_points
+        pts = (
+            np.concatenate([obstacle_points, *self.bump_points])
+            if self.bump_points
+            else obstacle_points
+        )
         self.add(pts)
 
     def add_bump(self, T_world_base: np.ndarray, robot_radius: float) -> None:

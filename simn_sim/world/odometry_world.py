@@ -29,7 +29,11 @@ class OdometryWorld:
     """See the module docstring."""
 
     def __init__(
-        self, slam_cfg: SlamConfig, obstacle_cfg: ObstacleConfig, intr: Intrinsics, T_base_cam: np.ndarray
+        self,
+        slam_cfg: SlamConfig,
+        obstacle_cfg: ObstacleConfig,
+        intr: Intrinsics,
+        T_base_cam: np.ndarray,
     ) -> None:
         self.cfg = slam_cfg
         self.perception = Perception(intr, slam_cfg.perception.replace(map_normal_smooth_px=-1))

@@ -23,7 +23,11 @@ class SlamWorld:
     ``rebuild_every`` steps, and grows by each frame's obstacle points in between."""
 
     def __init__(
-        self, slam_cfg: SlamConfig, obstacle_cfg: ObstacleConfig, intr: Intrinsics, T_base_cam: np.ndarray
+        self,
+        slam_cfg: SlamConfig,
+        obstacle_cfg: ObstacleConfig,
+        intr: Intrinsics,
+        T_base_cam: np.ndarray,
     ) -> None:
         self.slam = SimnSlam(slam_cfg, intr, T_base_cam=T_base_cam)
         self.T_base_cam = T_base_cam
@@ -39,7 +43,10 @@ class SlamWorld:
         T_wc = fr.T_world_cam
         self._pose = T_wc @ inv_T(self.T_base_cam)
         f = self.slam.frames
-        rebuild = f.anchors_version != self._anchors_version or self._steps % self.obstacles.cfg.rebuild_every == 0
+        rebuild = (
+            f.anchors_version != self._anchors_version
+            or self._steps % self.obstacles.cfg.rebuild_every == 0
+        )
         self._anchors_version = f.anchors_version
         p = self.slam.perception
         self.obstacles.integrate(
