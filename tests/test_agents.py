@@ -27,7 +27,7 @@ def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
     agent = make_agent("simn", env.unwrapped)
     agent.reset(obs, info)
     world = agent.world
-    frames = world.slam.frames
+    frames = world.frames
     frame = world.slam.perception(obs["rgb"], obs["depth"])
     T_wc = world.pose @ world.T_base_cam
     h, w = frame.depth.shape
@@ -69,8 +69,7 @@ def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, wor
         assert isinstance(model, CollisionChecker)
     # the local frames' stored obstacle points are obstacles of the planning model (within the
     # occupancy grid's cell)
-    frames = world.slam.frames if pose_source == "slam" else world.frames
-    obst = frames.obstacle_points_world()
+    obst = world.frames.obstacle_points_world()
     assert len(obst) > 100
     res = agent.cfg.obstacles.collision.resolution
     assert float(world.obstacles.planning.clearance(obst[:, :2]).max()) < res
@@ -81,6 +80,8 @@ def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, wor
 def test_bad_agent_config_is_rejected(env):
     with pytest.raises(ConfigError, match="rebuild_every"):
         make_agent("simn", env.unwrapped, {"obstacles": {"rebuild_every": 0}})
+    with pytest.raises(ConfigError, match="normal_smooth_px"):  # the front-end needs normals
+        make_agent("simn", env.unwrapped, {"slam": {"perception": {"normal_smooth_px": -1}}})
     with pytest.raises(ConfigError, match="unknown config key"):
         make_agent("simn", env.unwrapped, {"plnner": "uniform"})
     with pytest.raises(ConfigError, match="planner"):

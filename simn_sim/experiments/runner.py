@@ -145,10 +145,10 @@ def run_episode(
             obs, _, term, trunc, info = env.step(action)
             step += 1
             true_xy.append(info["T_world_base"][:2, 3].copy())
-            T_est = agent.debug().get("T_world_base_est")
+            T_est = dbg.get("T_world_base_est")  # env.step does not change the agent
             if T_est is not None:  # the agent's own frame is the episode start frame
                 est_xy.append((T_ws @ np.asarray(T_est, float))[:2, 3].copy())
-            recorder.log_step(step, obs, info, agent.debug())
+            recorder.log_step(step, obs, info, dbg)
             if progress is not None:
                 progress.update(1)
             if term or trunc:

@@ -243,6 +243,12 @@ class SlamConfig(Config):
             "is not used by the front-end; set SlamConfig.train_every instead",
         )
         require(
+            self.perception.normal_smooth_px >= 0,
+            n,
+            "perception.normal_smooth_px",
+            "must be >= 0: tracking, labels and the surface store need normals",
+        )
+        require(
             not (self.track_sdf == "implicit" and self.map_kind == "points"),
             n,
             "track_sdf",

@@ -110,6 +110,8 @@ class LocalFrames:
         self.n_carved = 0  # obstacle points removed by carving, in all
         self._base_map: ImplicitMap | None = None
         self._obst_cache: tuple[tuple, np.ndarray] | None = None
+        # per frame: (version, points, labels) of the last debug() (recorders ask every step)
+        self._debug_cache: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._floor_cache: tuple[tuple, np.ndarray] | None = None
 
     def __len__(self) -> int:
@@ -251,17 +253,21 @@ class LocalFrames:
         float32 anchor coordinates (obstacle then floor), ``labels`` (N,) int8, ``version``."""
         out: dict[int, dict[str, Any]] = {}
         for f, s in self.states.items():
-            P = np.concatenate([s.obstacles.points, s.floor.points])
-            lab = np.concatenate(
-                [
-                    np.full(len(s.obstacles), OBSTACLE, np.int8),
-                    np.full(len(s.floor), FLOOR, np.int8),
-                ]
-            )
+            version = s.obstacles.version + s.floor.version  # both only grow
+            cached = self._debug_cache.get(f)
+            if cached is None or cached[0] != version:
+                P = np.concatenate([s.obstacles.points, s.floor.points])
+                lab = np.concatenate(
+                    [
+                        np.full(len(s.obstacles), OBSTACLE, np.int8),
+                        np.full(len(s.floor), FLOOR, np.int8),
+                    ]
+                )
+                cached = self._debug_cache[f] = (version, P, lab)
             out[f] = {
                 "T_anchor": self.topo.anchor(f),
-                "points": P,
-                "labels": lab,
-                "version": s.obstacles.version + s.floor.version,
+                "points": cached[1],
+                "labels": cached[2],
+                "version": version,
             }
         return out

@@ -16,6 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from simn_sim.slam.frames import LocalFrames
 from simn_sim.tracking.topomap import TopoMap
 from simn_sim.world.obstacles import ObstacleMap
 
@@ -46,6 +47,11 @@ class WorldModel(Protocol):
     @property
     def pose(self) -> np.ndarray:
         """(4, 4) latest estimated base pose ``T_world_base`` (agent frame)."""
+        ...
+
+    @property
+    def frames(self) -> LocalFrames:
+        """The local frames, their point stores and carving."""
         ...
 
     @property

@@ -21,6 +21,7 @@ from simn_sim.geometry.camera import Intrinsics
 from simn_sim.geometry.se3 import transform_points
 from simn_sim.planning import CollisionChecker, CollisionConfig
 from simn_sim.semantics import OBSTACLE
+from simn_sim.slam.frames import LocalFrames
 from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
 
 
@@ -74,6 +75,8 @@ class ObstacleMap:
         self._shadow_map = CollisionChecker(c) if self.shadow is not None else None
         self._shadow_dirty = False  # shadow cells were cleared since the shadow model was built
         self.bump_points: list[np.ndarray] = []
+        self._views = 0  # views integrated (the rebuild schedule)
+        self._anchors_version = 0  # of the local frames at the last rebuild
 
     # ---- obstacles ---------------------------------------------------------------------------
     def add(self, points: np.ndarray) -> None:
@@ -170,13 +173,17 @@ class ObstacleMap:
         base_xy: np.ndarray,
         depth: np.ndarray,
         intr: Intrinsics,
-        stored_points: np.ndarray | None,
+        frames: LocalFrames,
     ) -> None:
-        """One view: shadows, then either a rebuild from ``stored_points`` (all obstacle points
-        of the local frames; None: no rebuild this step) or the view's points added."""
+        """One view: shadows, then the view's obstacle points added, or, every ``rebuild_every``
+        views and whenever the pose graph moved the anchors, both models rebuilt from the local
+        frames' stores (which drop points seen through: no ghosts)."""
         new_shadow = self.observe_shadow(obstacle_points, T_wc, base_xy, depth, intr, pixels)
-        if stored_points is not None:
-            self.rebuild(stored_points)
+        moved = frames.anchors_version != self._anchors_version
+        if moved or self._views % self.cfg.rebuild_every == 0:
+            self._anchors_version = frames.anchors_version
+            self.rebuild(frames.obstacle_points_world())
         else:
             self.add(obstacle_points)
         self.add_shadow(new_shadow)
+        self._views += 1

@@ -40,7 +40,6 @@ class OdometryWorld:
         self.frames = LocalFrames(slam_cfg)
         self.T_base_cam = T_base_cam
         self.obstacles = ObstacleMap(obstacle_cfg)
-        self._steps = 0
         self._pose: np.ndarray | None = None
 
     def update(self, t: float, obs: dict[str, np.ndarray], T_odom: np.ndarray) -> WorldStep:
@@ -58,7 +57,6 @@ class OdometryWorld:
         obst = frame.labels == OBSTACLE
         Pw = transform_points(T_wc, frame.points[obst].astype(np.float64)).astype(np.float32)
         self._pose = T_odom.copy()
-        rebuild = self._steps % self.obstacles.cfg.rebuild_every == 0
         self.obstacles.integrate(
             Pw,
             frame.pixels[obst],
@@ -66,9 +64,8 @@ class OdometryWorld:
             T_odom[:2, 3],
             obs["depth"],
             self.perception.intr,
-            frames.obstacle_points_world() if rebuild else None,
+            frames,
         )
-        self._steps += 1
         return WorldStep(self._pose, True, False, None, (time.perf_counter() - t0) * 1e3)
 
     @property

@@ -10,6 +10,7 @@ from simn_sim.geometry.camera import Intrinsics
 from simn_sim.geometry.se3 import inv_T
 from simn_sim.semantics import OBSTACLE
 from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.frames import LocalFrames
 from simn_sim.slam.pipeline import SimnSlam
 from simn_sim.tracking.topomap import TopoMap
 from simn_sim.world.base import WorldStep
@@ -32,8 +33,6 @@ class SlamWorld:
         self.slam = SimnSlam(slam_cfg, intr, T_base_cam=T_base_cam)
         self.T_base_cam = T_base_cam
         self.obstacles = ObstacleMap(obstacle_cfg)
-        self._anchors_version = 0
-        self._steps = 0
         self._pose: np.ndarray | None = None
 
     def update(self, t: float, obs: dict[str, np.ndarray], T_odom: np.ndarray) -> WorldStep:
@@ -42,28 +41,24 @@ class SlamWorld:
         fr = self.slam.process(t, obs["rgb"], obs["depth"], T_odom @ self.T_base_cam)
         T_wc = fr.T_world_cam
         self._pose = T_wc @ inv_T(self.T_base_cam)
-        f = self.slam.frames
-        rebuild = (
-            f.anchors_version != self._anchors_version
-            or self._steps % self.obstacles.cfg.rebuild_every == 0
-        )
-        self._anchors_version = f.anchors_version
-        p = self.slam.perception
         self.obstacles.integrate(
             fr.obstacle_points_world,
             fr.pixels[fr.labels == OBSTACLE],
             T_wc,
             self._pose[:2, 3],
             obs["depth"],
-            p.intr,
-            self.slam.obstacle_points_world() if rebuild else None,
+            self.slam.perception.intr,
+            self.slam.frames,
         )
-        self._steps += 1
         return WorldStep(self._pose, fr.success, fr.revisit_accepted, fr.track_ms, fr.map_ms)
 
     @property
     def pose(self) -> np.ndarray:
         return self._pose
+
+    @property
+    def frames(self) -> LocalFrames:
+        return self.slam.frames
 
     @property
     def topology(self) -> TopoMap:
