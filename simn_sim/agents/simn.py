@@ -44,8 +44,9 @@ from simn_sim.planning import (
     goal_vector_rrt_star,
     uniform_rrt_star,
 )
+from simn_sim.planning.costmap import CostMap, CostMapConfig
 from simn_sim.planning.gridpath import grid_shortest_path
-from simn_sim.planning.smoothing import push_from_obstacles
+from simn_sim.planning.smoothing import push_from_obstacles, shortcut_path
 from simn_sim.slam.config import SlamConfig
 from simn_sim.world import ObstacleConfig, WorldModel, make_world
 
@@ -109,6 +110,20 @@ class SimnAgentConfig(Config):
     topo_guidance: bool = True  # sub-goals on the route over the topological map
     topo_reach: float = 0.6  # a route node this close to the robot counts as reached (m)
     window: float = 6.0  # uniform RRT* samples the known map's box padded by this (m)
+    # ---- around the RRT* (simn_sim.planning.costmap): every planning cycle the candidate
+    # paths (the committed one, the fresh RRT* plan, the cost map's own route) are judged on
+    # the cost-to-go map (unknown space and the planning margin weighed); False: the plain
+    # RRT* loop (length-only switching, grid fallback), for ablations
+    judge: bool = True
+    costmap: CostMapConfig = CostMapConfig()
+    # the RRT* plan is kept unless its judged cost exceeds the cost map's route by this factor
+    homotopy_slack: float = 1.25
+    # lost progress: the cost-to-go on the agent's own map has not fallen below its best by
+    # progress_eps (m) for stall_steps control steps -> look around, then follow the cost
+    # map's route for force_steps steps
+    stall_steps: int = 150
+    progress_eps: float = 0.5
+    force_steps: int = 100
     seed: int = 0
 
     @classmethod
@@ -136,6 +151,10 @@ class SimnAgentConfig(Config):
         require(self.path_clearance >= 0, n, "path_clearance", "must be >= 0 (0: off)")
         require(self.topo_reach > 0, n, "topo_reach", "must be > 0")
         require(0 < self.switch_gain <= 1, n, "switch_gain", "must be in (0, 1]")
+        require(self.homotopy_slack >= 1, n, "homotopy_slack", "must be >= 1")
+        require(self.stall_steps >= 1, n, "stall_steps", "must be >= 1")
+        require(self.progress_eps > 0, n, "progress_eps", "must be > 0")
+        require(self.force_steps >= 0, n, "force_steps", "must be >= 0")
 
 
 @dataclasses.dataclass
@@ -201,8 +220,16 @@ class SimnAgent:
         self._scan_steps = int(
             math.ceil(math.radians(self.cfg.initial_scan_deg) / (w_scan * self.control_dt))
         )
+        self._full_scan_steps = int(math.ceil(2 * math.pi / (w_scan * self.control_dt)))
         self._best_goal_dist = math.inf  # the robot's closest approach to the goal so far
         self._route_kind = "goal_unexplored"
+        self._driven: list[np.ndarray] = []  # the estimated positions driven (known space)
+        self._best_ctg = math.inf  # the least cost-to-go so far, and the step it was reached
+        self._best_ctg_step = 0
+        self._ctg: float | None = None
+        self._force_until = -1  # follow the cost map's route until this step
+        self.lost_progress = 0
+        self.field_routes = 0  # plans where the cost map's route was taken
         self._step = self.world.update(0.0, obs, self.T_odom_prev)
 
     @staticmethod
@@ -267,7 +294,7 @@ class SimnAgent:
         self.tree_edges = None
         if job is not None:
             path = job.planner.finish()
-            if path is None:  # RRT* budget exhausted: complete grid search on the same checker
+            if path is None and not self.cfg.judge:  # budget exhausted: complete grid search
                 path = grid_shortest_path(checker, job.start, job.goal, self.rng)
                 self.fallback_plans += int(path is not None)
             if path is not None and self.cfg.path_clearance > 0:
@@ -285,9 +312,15 @@ class SimnAgent:
                 xy_t = np.asarray(tree.xy[: len(tree)])
                 self.tree_edges = np.stack([xy_t[ok], xy_t[par[ok]]], axis=1)
         self.since_plan = 0
+        if self.cfg.judge:
+            self._judge(path, xy, scheduled)
+            return
         if scheduled and self.path is not None:
             if path is None or path_length(path) >= self.cfg.switch_gain * self._remaining(xy):
                 return
+        self._take(path)
+
+    def _take(self, path: np.ndarray | None) -> None:
         if path is None:
             self.plan_failures += 1
             self.path = None
@@ -296,6 +329,63 @@ class SimnAgent:
             self.path = path
             self.follower.set_path(path)
             self._state = "following"
+
+    # ---- around the RRT*: the cost-to-go map -------------------------------------------------
+    def _costmap(self, xy: np.ndarray) -> CostMap:
+        """The cost-to-go map to the goal on the current map (known space: the local frames'
+        floor points and the driven path); updates the lost-progress measure."""
+        known = self.world.frames.floor_points_world()[:, :2]
+        if self._driven:
+            known = np.vstack([known, np.asarray(self._driven)])
+        cm = CostMap(
+            self.cfg.costmap, self.obstacles.safety, self.obstacles.planning, self.goal, xy, known
+        )
+        self._ctg = cm.cost_to_go(xy)
+        if self._ctg < self._best_ctg - self.cfg.progress_eps:
+            self._best_ctg, self._best_ctg_step = self._ctg, self.steps
+        return cm
+
+    def _field_route(self, cm: CostMap, xy: np.ndarray) -> tuple[np.ndarray | None, float]:
+        """The cost map's own route from ``xy``, shortcut and pushed from obstacles where that
+        does not make it dearer; and its cost."""
+        raw = cm.path(xy)
+        if raw is None:
+            return None, math.inf
+        c_raw = cm.path_cost(raw)
+        safety = self.obstacles.safety
+        p = shortcut_path(raw, safety, self.rng, iterations=30)
+        if self.cfg.path_clearance > 0:
+            p = push_from_obstacles(
+                p, safety, self.cfg.path_clearance, also_from=self.obstacles.shadow_model()
+            )
+        c = cm.path_cost(p)
+        return (p, c) if c <= 1.05 * c_raw else (raw, c_raw)
+
+    def _judge(self, rrt_path: np.ndarray | None, xy: np.ndarray, scheduled: bool) -> None:
+        """Choose among the fresh RRT* plan, the cost map's route and the committed path, all
+        judged on the same cost-to-go map (see :mod:`simn_sim.planning.costmap`)."""
+        cm = self._costmap(xy)
+        field, c_field = self._field_route(cm, xy)
+        c_rrt = cm.path_cost(rrt_path) if rrt_path is not None else math.inf
+        forced = self.steps < self._force_until
+        if forced or c_rrt > self.cfg.homotopy_slack * c_field:
+            new, c_new, kind = field, c_field, "field"
+        else:
+            new, c_new, kind = rrt_path, c_rrt, "rrt"
+        if scheduled and self.path is not None:
+            c_cur = cm.path_cost(self._remaining_path(xy))
+            if math.isfinite(c_cur) and not c_new < self.cfg.switch_gain * c_cur:
+                return  # the committed path stays
+        if new is None or not math.isfinite(c_new):
+            self._take(None)
+            return
+        self.field_routes += int(kind == "field")
+        self._take(new)
+
+    def _remaining_path(self, xy: np.ndarray) -> np.ndarray:
+        p = self.path
+        k = int(np.argmin(np.hypot(*(p - xy).T)))
+        return np.vstack([xy, p[k:]])
 
     def _plan(self, xy: np.ndarray, scheduled: bool = False) -> None:
         """Plan now, the whole iteration budget in this control step (cancels a sliced plan)."""
@@ -352,6 +442,22 @@ class SimnAgent:
         pose = np.array([T[0, 3], T[1, 3], yaw_of(T)])
         xy = pose[:2]
         self._best_goal_dist = min(self._best_goal_dist, float(np.hypot(*(xy - self.goal))))
+        if not self._driven or np.hypot(*(self._driven[-1] - xy)) > 0.1:
+            self._driven.append(xy.copy())
+        if (
+            self.cfg.judge
+            and self._ctg is not None
+            and self._scan_steps == 0
+            and self.steps - self._best_ctg_step > self.cfg.stall_steps
+        ):
+            # lost progress: the cost-to-go on the agent's own map has not fallen for
+            # stall_steps; look around, then follow the cost map's route for a while
+            self.lost_progress += 1
+            self._scan_steps = self._full_scan_steps
+            self._force_until = self.steps + self._full_scan_steps + self.cfg.force_steps
+            self._best_ctg, self._best_ctg_step = math.inf, self.steps
+            self.path = None
+            self._job = None
         checker, w_max = self.obstacles.planning, self.follower_cfg.w_max
         if float(checker.clearance(xy[None])[0]) < self.cfg.obstacles.collision.robot_radius + 0.01:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
@@ -405,6 +511,8 @@ class SimnAgent:
             "plan_failures": self.plan_failures,
             "fallback_plans": self.fallback_plans,
             "bumps": self.bump.bumps if self.world is not None else 0,
+            "lost_progress": getattr(self, "lost_progress", 0),
+            "field_routes": getattr(self, "field_routes", 0),
         }
         if self.world is not None:
             out.update(self.world.counters())
@@ -425,6 +533,7 @@ class SimnAgent:
                 "map_ms": None if step is None else step.map_ms,
                 "track_ms": None if step is None else step.track_ms,
                 "route": getattr(self, "_route_kind", None),
+                "cost_to_go": getattr(self, "_ctg", None),
             }
         )
         return d
