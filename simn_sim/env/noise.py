@@ -177,3 +177,37 @@ class ActuationNoise:
         e = np.clip(self.err, -3.0 * self.sigma, 3.0 * self.sigma)
         gain = np.maximum(1.0 + self.bias + e, 0.05)
         return float(v * gain[0]), float(w * gain[1])
+
+
+def odometry_step(
+    odom: np.ndarray,
+    prev_pose: np.ndarray,
+    pose: np.ndarray,
+    trans_std: float,
+    rot_std: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Wheel odometry ``odom`` (3,) ``(x, y, yaw)`` in the start frame after the base moved from
+    ``prev_pose`` to ``pose`` ((3,) world ``(x, y, yaw)``, the motion it executed).
+
+    Drift: the step's translation is scaled by ``1 + N(0, trans_std)`` and its heading change
+    gets ``N(0, rot_std) * (|dyaw| + distance)``, drawn fresh each step (zero-mean, no
+    systematic error). Both zero: the exact pose, and nothing is drawn.
+    """
+    c, s = math.cos(prev_pose[2]), math.sin(prev_pose[2])
+    dxw, dyw = pose[0] - prev_pose[0], pose[1] - prev_pose[1]
+    dx, dy = c * dxw + s * dyw, -s * dxw + c * dyw
+    dth = _wrap(pose[2] - prev_pose[2])
+    dist = math.hypot(dx, dy)
+    if trans_std > 0 or rot_std > 0:
+        scale = 1.0 + rng.normal(0.0, trans_std)
+        dx, dy = dx * scale, dy * scale
+        dth = dth + rng.normal(0.0, rot_std) * (abs(dth) + dist)
+    co, so = math.cos(odom[2]), math.sin(odom[2])
+    return np.array(
+        [odom[0] + co * dx - so * dy, odom[1] + so * dx + co * dy, _wrap(odom[2] + dth)]
+    )
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -40,7 +40,7 @@ from gymnasium import spaces
 
 from simn_sim.env.episodes import EpisodeSpec
 from simn_sim.env.layout import Layout, generate_layout
-from simn_sim.env.noise import ActuationNoise, apply_depth_noise
+from simn_sim.env.noise import ActuationNoise, apply_depth_noise, odometry_step
 from simn_sim.env.office_config import CameraInfo, EnvConfig, env_config_from_file
 from simn_sim.env.people import _People
 from simn_sim.env.scene import (
@@ -350,21 +350,13 @@ class SimnOfficeEnv(gym.Env):
             self.data.mocap_pos[mid] = [x, y, 0.0]
 
     def _integrate_odometry(self, pose: np.ndarray) -> None:
-        prev = self._prev_pose
-        c, s = math.cos(prev[2]), math.sin(prev[2])
-        dxw, dyw = pose[0] - prev[0], pose[1] - prev[1]
-        dx, dy = c * dxw + s * dyw, -s * dxw + c * dyw
-        dth = _wrap(pose[2] - prev[2])
-        dist = math.hypot(dx, dy)
-        if self.cfg.odom_noise_trans > 0 or self.cfg.odom_noise_rot > 0:
-            r = self._noise_rng
-            scale = 1.0 + r.normal(0.0, self.cfg.odom_noise_trans)
-            dx, dy = dx * scale, dy * scale
-            dth = dth + r.normal(0.0, self.cfg.odom_noise_rot) * (abs(dth) + dist)
-        o = self._odom
-        co, so = math.cos(o[2]), math.sin(o[2])
-        self._odom = np.array(
-            [o[0] + co * dx - so * dy, o[1] + so * dx + co * dy, _wrap(o[2] + dth)]
+        self._odom = odometry_step(
+            self._odom,
+            self._prev_pose,
+            pose,
+            self.cfg.odom_noise_trans,
+            self.cfg.odom_noise_rot,
+            self._noise_rng,
         )
         self._prev_pose = pose.copy()
 
@@ -428,10 +420,6 @@ class SimnOfficeEnv(gym.Env):
 
     def __setstate__(self, st: dict[str, Any]) -> None:
         self.__dict__.update(st)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
