@@ -4,7 +4,8 @@
 
 Runs a small fixed oracle batch (``envs/episodes/regression_v1.json``: 6 short episodes over
 3 layouts, geodesic 3-6 m; ``--episode-file`` for another set) on ``SimnOfficeFast-v0``
-(320x240) for each backend and worker count, each time into a fresh folder, and reports:
+(320x240, ideal sensing like the regression gate) for each backend and worker count, each time
+into a fresh folder, and reports:
 
 * ``eps/h``: episodes per hour over the batch's wall time (pool start-up, worker imports and
   env creation included; for Ray, ``ray.init`` is excluded and reported on its own);
@@ -55,6 +56,7 @@ def run_one(
             out=out,
             agent="oracle",
             env_id=ENV_ID,
+            env_config={"sensing": "ideal"},
             episode_file=episode_file or regression_episode_file(),
             workers=workers,
             backend=backend,

@@ -1,7 +1,8 @@
 """Env throughput: SimnOffice-v0 steps/s against bare MuJoCo on the same scene, in the same run.
 
 Measures, at each resolution:
-  - env: ``env.step`` with rendering (RGB-D, noise model as configured, geodesic, metrics);
+  - env: ``env.step`` with rendering (RGB-D, geodesic, metrics) under ideal sensing, with the
+    depth model ``--noise`` (the figures in docs/env.md are ``--noise none``);
   - bare_1pass: the same physics steps + one-pass RGB-D render with the env's own camera class
     (the floor for any env built on this scene); the env's overhead ratio is env / bare_1pass;
   - bare_renderer: physics + ``mujoco.Renderer`` colour pass + depth pass (what a plain MuJoCo
@@ -41,6 +42,7 @@ def bench(width: int, height: int, steps: int, noise: str) -> dict:
         config={
             "width": width,
             "height": height,
+            "sensing": "ideal",
             "depth_noise": {"model": noise},
             "max_episode_steps": 10**6,
         },

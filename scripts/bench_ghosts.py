@@ -7,7 +7,8 @@ called a *ghost* when it is more than ``--static-margin`` from every true static
 more than ``--person-margin`` from every person's current position: an obstacle that is no
 longer there. Reports ghost area (m^2), success, collisions (with people separately).
 
-Usage: python scripts/bench_ghosts.py [--episodes 4] [--seed 0]
+Usage: python scripts/bench_ghosts.py [--episodes 4] [--seed 0] [--sensing realistic|ideal]
+(``--sensing``: the env's sensing condition, default realistic like the env's.)
 """
 
 from __future__ import annotations
@@ -47,8 +48,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--static-margin", type=float, default=0.3)
     ap.add_argument("--person-margin", type=float, default=0.6)
+    ap.add_argument("--sensing", choices=["realistic", "ideal"], default="realistic")
     a = ap.parse_args()
-    env = gym.make("SimnOfficeDynamic-v0", config={"width": 320, "height": 240})
+    env = gym.make(
+        "SimnOfficeDynamic-v0", config={"width": 320, "height": 240, "sensing": a.sensing}
+    )
     out = {}
     for carve in (False, True):
         rows = []

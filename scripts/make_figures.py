@@ -1,7 +1,8 @@
 """README pictures: a rendered RGB-D frame and a top-down map of a layout with an exact geodesic path.
 
 Writes docs/images/rgbd.png (colour | depth, colour-mapped) and docs/images/layout.png
-(overview render | footprint map: inflated free space, start, goal, shortest path).
+(overview render | footprint map: inflated free space, start, goal, shortest path). The frame
+is rendered with ideal sensing (exact depth, as the committed images were made).
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=3)
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
-    env = gym.make("SimnOffice-v0", render_mode="rgb_array")
+    env = gym.make("SimnOfficeIdeal-v0", render_mode="rgb_array")
     obs, info = env.reset(seed=a.seed)
     u = env.unwrapped
     for _ in range(3):

@@ -1,7 +1,8 @@
 """Record the simulated SLAM sequences, run ``simn-sim slam`` on each, write the table.
 
 Sequences: desk, corridor, loop (``simn_sim.slam.record``), each noise-free and with the D435i
-depth-noise model, at 320x240, plus the real 9-frame TUM fr1/desk clip when present. Each is
+depth-noise model (ideal actuation and the recorder's odometry drift: ``record_sequence``'s
+sensing), at 320x240, plus the real 9-frame TUM fr1/desk clip when present. Each is
 run with the given SLAM config (default: ``map_kind=points``: tracking is the same with the
 learned map, see docs/slam.md; ``--implicit`` also runs the learned map on the desk sequences
 to report its cost). The results table replaces the block between the ``results`` markers in

@@ -73,9 +73,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     env_cfg = _env_cfg(args)
     agent = _resolve_agent(args.agent)
     episode = None
+    env_id = args.env or "SimnOffice-v0"
     if args.episode_file:
-        eps = EpisodeSet.load(args.episode_file).episodes
-        episode = eps[args.episode_index].to_dict()
+        eset = EpisodeSet.load(args.episode_file)
+        episode = eset.episodes[args.episode_index].to_dict()
+        env_id = args.env or eset.env_id  # the file's env id unless --env is given
+    args.env = env_id
     env = gym.make(args.env, config=env_cfg)
     resolved = {
         "env_id": args.env,
@@ -124,6 +127,10 @@ def cmd_episodes(args: argparse.Namespace) -> int:
     from simn_sim.env.episodes import EpisodeSet, EpisodeSpec
 
     layouts = [None if s < 0 else s for s in args.layouts]
+    if args.pool:
+        return _episodes_from_pool(args, layouts)
+    if args.min_traps or args.people_clearance:
+        raise ValueError("--min-traps and --people-clearance need --pool")
     eps: list[EpisodeSpec] = []
     with tqdm(total=args.n * len(layouts), desc="sampling episodes") as bar:
         for lay in layouts:
@@ -158,6 +165,39 @@ def cmd_episodes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _episodes_from_pool(args: argparse.Namespace, layouts: list[int | None]) -> int:
+    """``--pool K``: choose ``--n`` per layout from K candidates (simn_sim.env.episode_sets)."""
+    from tqdm import tqdm
+
+    from simn_sim.env.episode_sets import TRAP_TAG, build_episode_set
+    from simn_sim.experiments.batch_config import BatchError, resolve_env_config
+
+    try:
+        clearance = float(resolve_env_config(args.env, {})["start_clearance"])
+    except BatchError as e:
+        raise ValueError(str(e)) from e
+    with tqdm(total=len(layouts), desc=f"sampling {args.pool} candidates per layout") as bar:
+        eset = build_episode_set(
+            args.env,
+            layouts,
+            n=args.n,
+            seed=args.seed,
+            prefix=args.prefix,
+            min_geodesic=args.min_geodesic,
+            max_geodesic=args.max_geodesic,
+            pool=args.pool,
+            bins=args.geodesic_bins,
+            min_traps=args.min_traps,
+            start_clearance=clearance,
+            people_clearance=args.people_clearance,
+            progress=bar.update,
+        )
+    eset.save(args.out)
+    n_traps = sum(TRAP_TAG in e.tags for e in eset.episodes)
+    print(f"wrote {len(eset.episodes)} episodes ({n_traps} traps) to {args.out}")
+    return 0
+
+
 def _passthrough(sub, name: str, help_: str, target: str) -> None:
     """A sub-command whose arguments are parsed by ``target`` (``module:function(argv) -> int``)."""
     p = sub.add_parser(name, help=help_, add_help=False)
@@ -180,7 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="run one headless episode, write metrics, config and a rerun recording"
     )
     d.add_argument("--out", required=True)
-    d.add_argument("--env", default="SimnOffice-v0")
+    d.add_argument(
+        "--env", default=None, help="env id (default: the episode file's, else SimnOffice-v0)"
+    )
     d.add_argument("--agent", default=None, help="simn (default), rrtstar or oracle")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--episode-file", default=None)
@@ -210,6 +252,29 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--prefix", default="ep")
     e.add_argument("--min-geodesic", type=float, default=3.0)
     e.add_argument("--max-geodesic", type=float, default=12.0)
+    e.add_argument(
+        "--pool",
+        type=int,
+        default=0,
+        help="draw K candidates per layout by the env sampler's rules and choose --n of them, "
+        "spread over the geodesic range, trap episodes tagged (0: take n env samples as drawn)",
+    )
+    e.add_argument(
+        "--geodesic-bins", type=int, default=4, help="with --pool: equal-width geodesic bins"
+    )
+    e.add_argument(
+        "--min-traps",
+        type=int,
+        default=0,
+        help="with --pool: at least this many trap episodes in all (simn_sim.env.traps)",
+    )
+    e.add_argument(
+        "--people-clearance",
+        type=float,
+        default=0.0,
+        help="with --pool: move an episode's seed until no person spawns within this many "
+        "metres of the start (dynamic office)",
+    )
     e.set_defaults(func=cmd_episodes)
 
     _passthrough(

@@ -27,13 +27,18 @@ def _check_type(name: str, value: Any, tp: Any) -> Any:
     if tp is Any:
         return value
     if origin in (typing.Union, types.UnionType):
+        errors: list[ConfigError] = []
         for arg in typing.get_args(tp):
-            if arg is type(None) and value is None:
-                return None
+            if arg is type(None):
+                if value is None:
+                    return None
+                continue  # a non-None value must match one of the other types
             try:
                 return _check_type(name, value, arg)
-            except ConfigError:
-                continue
+            except ConfigError as e:
+                errors.append(e)
+        if len(errors) == 1:  # ``X | None``: X's own message names the bad value
+            raise errors[0]
         raise ConfigError(f"config field '{name}': {value!r} is not of type {tp}")
     if origin is typing.Literal:
         if value not in typing.get_args(tp):

@@ -18,7 +18,9 @@ from simn_sim.env.office import SimnOfficeEnv
 from simn_sim.geometry.camera import backproject
 from simn_sim.geometry.se3 import transform_points
 
-FAST = {"width": 160, "height": 120}
+# ideal sensing: these tests check exact geometry (depth on known planes, exact odometry, exact
+# speeds); realistic sensing, the default, is tested in tests/test_sensing.py
+FAST = {"width": 160, "height": 120, "sensing": "ideal"}
 
 
 def _reference_episode(env) -> EpisodeSpec:

@@ -204,13 +204,14 @@ def test_oracle_recording_has_entities_and_steps(tmp_path: Path) -> None:
 def test_simn_recording_in_world_frame(tmp_path: Path) -> None:
     """A SLAM agent's recording: the topological map's arcs end on its nodes and everything it
     reports in its start frame lands inside the building (the planner tree excepted: RRT*
-    samples unknown space, which reaches beyond the outer walls)."""
+    samples unknown space, which reaches beyond the outer walls). Ideal sensing: the check is
+    on frames, and D435i noise at range puts map points beyond the 0.1 m margin."""
     spec = next(
         e
         for e in EpisodeSet.load(regression_episode_file()).episodes
         if e.episode_id == "reg-ref-000"
     )
-    env_cfg = resolve_env_config("SimnOffice-v0", {"width": 160, "height": 120})
+    env_cfg = resolve_env_config("SimnOffice-v0", {"width": 160, "height": 120, "sensing": "ideal"})
     env = make_env("SimnOffice-v0", env_cfg)
     rrd = tmp_path / "simn.rrd"
     try:

@@ -4,10 +4,12 @@ File format ``simn-sim-episodes/1``::
 
     {"format": "simn-sim-episodes/1", "env_id": "SimnOffice-v0",
      "episodes": [{"episode_id": "ref-000", "layout_seed": null, "seed": 0,
-                   "start": [x, y, yaw], "goal": [x, y]}, ...]}
+                   "start": [x, y, yaw], "goal": [x, y], "tags": ["trap"]}, ...]}
 
-``layout_seed`` null means the reference office. A corrupt or foreign file gives a ValueError
-naming the file and the offending episode.
+``layout_seed`` null means the reference office. ``tags`` is optional (a list of strings, e.g.
+``"trap"``: :mod:`simn_sim.env.traps`); an episode without tags is written without the key, so
+files from before tags existed load and re-save unchanged. A corrupt or foreign file gives a
+ValueError naming the file and the offending episode.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ class EpisodeSpec:
     layout_seed: int | None
     start: tuple[float, float, float]  # world x, y (m), yaw (rad)
     goal: tuple[float, float]  # world x, y (m)
-    seed: int = 0  # seeds the env's noise streams for this episode
+    seed: int = 0  # seeds the env's noise streams (and the people) for this episode
+    tags: tuple[str, ...] = ()  # labels such as "trap" (simn_sim.env.traps)
 
     def __post_init__(self) -> None:
         if not isinstance(self.episode_id, str) or not self.episode_id:
@@ -44,6 +47,13 @@ class EpisodeSpec:
             raise ValueError(
                 f"episode {self.episode_id}: layout_seed must be a non-negative int or null"
             )
+        if isinstance(self.tags, list):
+            object.__setattr__(self, "tags", tuple(self.tags))
+        if not isinstance(self.tags, tuple) or not all(isinstance(t, str) and t for t in self.tags):
+            raise ValueError(
+                f"episode {self.episode_id}: tags must be a tuple of non-empty strings, "
+                f"got {self.tags!r}"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -52,10 +62,17 @@ class EpisodeSpec:
             "seed": self.seed,
             "start": [float(v) for v in self.start],
             "goal": [float(v) for v in self.goal],
+            **({"tags": list(self.tags)} if self.tags else {}),
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<dict>") -> EpisodeSpec:
+        tags = d.get("tags", []) if isinstance(d, dict) else []
+        if not isinstance(tags, list) or not all(isinstance(t, str) and t for t in tags):
+            raise ValueError(
+                f"{source}: episode {d.get('episode_id')!r}: 'tags' must be a list of "
+                f"non-empty strings, got {tags!r}"
+            )
         try:
             return cls(
                 episode_id=str(d["episode_id"]),
@@ -63,6 +80,7 @@ class EpisodeSpec:
                 start=tuple(float(v) for v in d["start"]),
                 goal=tuple(float(v) for v in d["goal"]),
                 seed=int(d.get("seed", 0)),
+                tags=tuple(tags),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"{source}: bad episode entry {d!r}: {e}") from e

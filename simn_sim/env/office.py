@@ -11,12 +11,18 @@ Observation (``Dict``):
   - ``goal``: (2,) float32 goal position (x, y) in the episode's start frame (the base frame at
     reset: x forward, y left).
   - ``odometry``: (3,) float32 base pose (x, y, yaw) in the start frame, integrated from wheel
-    odometry with configurable noise (``odom_noise_*``; zero gives the exact pose).
+    odometry of the executed motion with configurable drift (``odom_noise_*``; zero gives the
+    exact pose).
 Action: ``Box([v_min, -w_max], [v_max, w_max])``: forward speed v (m/s) and turn rate w (rad/s)
 of a unicycle. Defaults v in [-0.3, 1.0] m/s, w in [-1.5, 1.5] rad/s. A NaN/inf, wrongly shaped
 or out-of-bounds action raises ``ValueError``; wrap with ``gymnasium.wrappers.ClipAction`` to clip.
+The base executes the command through the actuation noise model (``actuation_noise``).
+Sensing: ``EnvConfig.sensing`` ``"realistic"`` (default: D435i depth, odometry drift, actuation
+noise) or ``"ideal"`` (env id ``SimnOfficeIdeal-v0``); all noise comes from generators seeded
+from ``reset(seed=...)``. See docs/env.md.
 ``info``: ``T_world_base``, ``T_world_cam`` (4x4, OpenCV optical frame), ``collided``,
-``distance_to_goal``, ``geodesic_distance_to_goal`` and, at the end of an episode, ``episode``
+``distance_to_goal``, ``geodesic_distance_to_goal``, after a step ``executed_action`` ((2,)
+float64 ``[v, w]`` the base executed) and, at the end of an episode, ``episode``
 (the metrics of :class:`simn_sim.metrics.EpisodeMetrics`). The true poses are for metrics and
 oracle agents only. ``reset`` also returns ``camera`` (:class:`CameraInfo`: intrinsics and
 ``T_base_cam``) in ``info``.
@@ -34,7 +40,7 @@ from gymnasium import spaces
 
 from simn_sim.env.episodes import EpisodeSpec
 from simn_sim.env.layout import Layout, generate_layout
-from simn_sim.env.noise import apply_depth_noise
+from simn_sim.env.noise import ActuationNoise, apply_depth_noise, odometry_step
 from simn_sim.env.office_config import CameraInfo, EnvConfig, env_config_from_file
 from simn_sim.env.people import _People
 from simn_sim.env.scene import (
@@ -204,7 +210,12 @@ class SimnOfficeEnv(gym.Env):
         self._episode = ep
         mujoco.mj_resetData(self.model, self.data)
         self._set_pose2d(*start)
-        self._noise_rng = np.random.default_rng(self.np_random.integers(2**63))
+        noise_seed = int(self.np_random.integers(2**63))
+        self._noise_rng = np.random.default_rng(noise_seed)  # depth and odometry
+        # actuation: its own stream from the same draw (np_random's later draws stay as they were)
+        self._act_rng = np.random.default_rng([noise_seed, 1])
+        self._actuation = ActuationNoise(self.cfg.actuation_noise, self.dt)
+        self._actuation.reset(self._act_rng)
         self._people = _People(
             self.free_space,
             self.cfg.n_people,
@@ -274,7 +285,9 @@ class SimnOfficeEnv(gym.Env):
     def step(self, action):
         if self._episode is None:
             raise RuntimeError("call reset() before step()")
-        v, w = self._check_action(action)
+        v_cmd, w_cmd = self._check_action(action)
+        v, w = self._actuation.apply(v_cmd, w_cmd, self._act_rng)
+        v, w = float(np.clip(v, -2.0, 2.0)), float(np.clip(w, -4.0, 4.0))  # actuator ctrlrange
         collided = False
         qa = self._scene.qpos_adr
         for _ in range(self.frame_skip):
@@ -316,6 +329,7 @@ class SimnOfficeEnv(gym.Env):
         reward = float(progress + r_success + r_collision - 0.01)
         obs = self._observe()
         info = self._info(collided=collided, geo=geo)
+        info["executed_action"] = np.array([v, w])
         info["reward_terms"] = {
             "progress": progress,
             "success": r_success,
@@ -336,21 +350,13 @@ class SimnOfficeEnv(gym.Env):
             self.data.mocap_pos[mid] = [x, y, 0.0]
 
     def _integrate_odometry(self, pose: np.ndarray) -> None:
-        prev = self._prev_pose
-        c, s = math.cos(prev[2]), math.sin(prev[2])
-        dxw, dyw = pose[0] - prev[0], pose[1] - prev[1]
-        dx, dy = c * dxw + s * dyw, -s * dxw + c * dyw
-        dth = _wrap(pose[2] - prev[2])
-        dist = math.hypot(dx, dy)
-        if self.cfg.odom_noise_trans > 0 or self.cfg.odom_noise_rot > 0:
-            r = self._noise_rng
-            scale = 1.0 + r.normal(0.0, self.cfg.odom_noise_trans)
-            dx, dy = dx * scale, dy * scale
-            dth = dth + r.normal(0.0, self.cfg.odom_noise_rot) * (abs(dth) + dist)
-        o = self._odom
-        co, so = math.cos(o[2]), math.sin(o[2])
-        self._odom = np.array(
-            [o[0] + co * dx - so * dy, o[1] + so * dx + co * dy, _wrap(o[2] + dth)]
+        self._odom = odometry_step(
+            self._odom,
+            self._prev_pose,
+            pose,
+            self.cfg.odom_noise_trans,
+            self.cfg.odom_noise_rot,
+            self._noise_rng,
         )
         self._prev_pose = pose.copy()
 
@@ -414,10 +420,6 @@ class SimnOfficeEnv(gym.Env):
 
     def __setstate__(self, st: dict[str, Any]) -> None:
         self.__dict__.update(st)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:

@@ -5,17 +5,55 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
 from simn_sim.config import Config, ConfigError, require
-from simn_sim.env.noise import DepthNoiseConfig
+from simn_sim.env.noise import ActuationNoiseConfig, DepthNoiseConfig
 from simn_sim.geometry.camera import Intrinsics
+
+NOISE_KEYS = ("depth_noise", "odom_noise_trans", "odom_noise_rot", "actuation_noise")
+
+# What each ``sensing`` condition sets the noise keys to when they are not given (docs/env.md).
+SENSING_PRESETS: dict[str, dict[str, Any]] = {
+    "realistic": {
+        "depth_noise": {"model": "d435i"},
+        "odom_noise_trans": 0.02,
+        "odom_noise_rot": 0.02,
+        "actuation_noise": {"model": "gaussian"},
+    },
+    "ideal": {
+        "depth_noise": {"model": "none"},
+        "odom_noise_trans": 0.0,
+        "odom_noise_rot": 0.0,
+        "actuation_noise": {"model": "none"},
+    },
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig(Config):
-    """Configuration of :class:`SimnOfficeEnv` (every field validated)."""
+    """Configuration of :class:`SimnOfficeEnv` (every field validated).
+
+    ``sensing`` picks the noise condition: ``"realistic"`` (the default) or ``"ideal"`` (exact
+    depth, exact odometry, the command executed exactly). The noise keys (:data:`NOISE_KEYS`)
+    left unset (``None``) take the preset's value; a key given explicitly wins over the preset
+    (a partial mapping for ``depth_noise`` / ``actuation_noise`` is merged over the preset's).
+    ``to_dict`` holds the resolved values. Realistic sensing:
+
+    - ``depth_noise``: ``{model: d435i}`` (:class:`~simn_sim.env.noise.DepthNoiseConfig`; the
+      D435/D435i datasheet's 50 mm baseline and Intel's whitepaper figures, 0.08 px subpixel
+      RMS, 1/32 px disparity steps; dropout rates chosen, not measured);
+    - ``odom_noise_trans`` 0.02, ``odom_noise_rot`` 0.02: wheel-odometry drift, chosen, not
+      measured (zero-mean per-step errors: no systematic wheel-diameter or wheelbase error of
+      the kind UMBmark, Borenstein & Feng 1996, measures); the drift they give is measured in
+      ``tests/test_sensing.py`` and quoted in docs/env.md. Odometry integrates the motion the
+      base executed (encoders see the actuation error), with this drift on top;
+    - ``actuation_noise``: ``{model: gaussian}``
+      (:class:`~simn_sim.env.noise.ActuationNoiseConfig`: the LoCoBot/PyRobot model, Murali et
+      al. 2019, at Habitat Challenge 2020's noise multiplier 0.5).
+    """
 
     layout_seed: int | None = None  # None: the fixed reference office in envs/
     width: int = 640
@@ -23,9 +61,12 @@ class EnvConfig(Config):
     fovy_deg: float = 42.5
     depth_min: float = 0.28
     depth_max: float = 10.0
-    depth_noise: DepthNoiseConfig = DepthNoiseConfig()
-    odom_noise_trans: float = 0.0  # std of translation error per metre driven (m/m)
-    odom_noise_rot: float = 0.0  # std of heading error per radian turned + per metre (rad)
+    sensing: Literal["realistic", "ideal"] = "realistic"
+    # None: from the ``sensing`` preset (SENSING_PRESETS); resolved in __post_init__
+    depth_noise: DepthNoiseConfig | None = None
+    odom_noise_trans: float | None = None  # relative std of each step's translation (m/m)
+    odom_noise_rot: float | None = None  # heading std per radian turned + per metre (rad)
+    actuation_noise: ActuationNoiseConfig | None = None
     control_hz: float = 10.0
     v_min: float = -0.3
     v_max: float = 1.0
@@ -38,6 +79,29 @@ class EnvConfig(Config):
     start_clearance: float = 0.15  # sampled starts/goals keep this margin beyond the robot radius
     n_people: int = 0  # moving people (the dynamic office)
     segmentation: bool = False  # also render the segmentation (info['segmentation'])
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.sensing, str) or self.sensing not in SENSING_PRESETS:
+            raise ConfigError(
+                f"EnvConfig.sensing: {self.sensing!r} is not one of {tuple(SENSING_PRESETS)}"
+            )
+        given = {k: getattr(self, k) for k in NOISE_KEYS if getattr(self, k) is not None}
+        object.__setattr__(self, "_given", given)  # not a field: kept by ``replace``
+        preset = SENSING_PRESETS[self.sensing]
+        for k in NOISE_KEYS:
+            v = given.get(k, preset[k])
+            if isinstance(v, dict):
+                v = {**preset[k], **v}
+            object.__setattr__(self, k, v)
+        super().__post_init__()
+
+    def replace(self, **changes: Any) -> EnvConfig:
+        """A copy with ``changes``; the noise keys not given explicitly stay unset, so a new
+        ``sensing`` value re-resolves them."""
+        d = {k: v for k, v in self.to_dict().items() if k not in NOISE_KEYS}
+        for k, v in self._given.items():
+            d[k] = v.to_dict() if isinstance(v, Config) else v
+        return type(self).from_dict({**d, **changes})
 
     def validate(self) -> None:
         n = "EnvConfig"

@@ -5,7 +5,8 @@ from __future__ import annotations
 import gymnasium as gym
 
 ENV_IDS = {
-    "SimnOffice-v0": {},
+    "SimnOffice-v0": {},  # realistic sensing (EnvConfig.sensing's default)
+    "SimnOfficeIdeal-v0": {"sensing": "ideal"},
     "SimnOfficeFast-v0": {"width": 320, "height": 240},
     "SimnOfficeDynamic-v0": {"n_people": 4},
 }

@@ -339,7 +339,8 @@ def _progress(total: int, cfg: BatchConfig, skipped: list[str]) -> Any:
 #: The fixed regression set (``envs/episodes/regression_v1.json``) runs at this resolution.
 REGRESSION_SET = "regression_v1"
 REGRESSION_ENV_ID = "SimnOffice-v0"
-REGRESSION_ENV_CONFIG: dict[str, Any] = {"width": 160, "height": 120}
+# ideal sensing: the stored baselines (tests/baselines/regression_v1_*.jsonl) were recorded with it
+REGRESSION_ENV_CONFIG: dict[str, Any] = {"width": 160, "height": 120, "sensing": "ideal"}
 
 
 def regression_episode_file(name: str = REGRESSION_SET) -> Path:

@@ -209,6 +209,13 @@ class SlamConfig(Config):
     # in its region (x-y box) grown by loop.max_correction_m (the check's drift budget: with
     # less overlap the registration cannot pass it); 0: every descriptor candidate is checked
     revisit_min_overlap: float = 0.0
+    # how revisit candidates are ranked before registration verifies them:
+    #   "learned": the new frame's learned key points matched to each earlier frame's by their
+    #   feature vectors (descriptors.KeyPointIndex; needs map_kind implicit);
+    #   "keypoints": the same matching without the features (share of key points in reach);
+    #   "geometric": the frames' pooled descriptors (occupancy grid + shape histograms);
+    #   "auto": learned with map_kind implicit, geometric with points
+    revisit_features: Literal["auto", "learned", "keypoints", "geometric"] = "auto"
     semantics: bool = True  # floor / obstacle labels (needs T_base_cam: the floor plane)
     # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
     # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and
@@ -295,6 +302,12 @@ class SlamConfig(Config):
         require(self.depth_sigma_per_m2 >= 0, n, "depth_sigma_per_m2", "must be >= 0")
         require(self.revisit_checks_per_frame >= 0, n, "revisit_checks_per_frame", "must be >= 0")
         require(0 <= self.revisit_min_overlap <= 1, n, "revisit_min_overlap", "must be in [0, 1]")
+        require(
+            not (self.revisit_features == "learned" and self.map_kind == "points"),
+            n,
+            "revisit_features",
+            "'learned' needs map_kind 'implicit' (the point store has no learned features)",
+        )
         require(
             self.revisit_registrations_per_frame >= 0,
             n,
