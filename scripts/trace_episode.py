@@ -141,7 +141,13 @@ def main() -> None:
         if eid not in by_id:
             raise SystemExit(f"episode {eid!r} is not in {args.episode_file}")
         r = trace(
-            es.env_id, env_cfg, args.agent, agent_cfg, by_id[eid], args.out, args.path_every,
+            es.env_id,
+            env_cfg,
+            args.agent,
+            agent_cfg,
+            by_id[eid],
+            args.out,
+            args.path_every,
             set(args.snap),
         )
         print(eid, r)

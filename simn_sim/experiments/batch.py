@@ -239,7 +239,12 @@ def _episode_source(cfg: BatchConfig) -> tuple[str, list[dict[str, Any]] | None]
         eset = EpisodeSet.load(cfg.episode_file)
     except (OSError, ValueError) as e:
         raise BatchError(str(e)) from e
-    return cfg.env_id or eset.env_id, [e.to_dict() for e in eset.episodes]
+    eps = eset.episodes
+    if cfg.tag is not None:
+        eps = [e for e in eps if cfg.tag in e.tags]
+        if not eps:
+            raise BatchError(f"{cfg.episode_file}: no episode carries the tag {cfg.tag!r}")
+    return cfg.env_id or eset.env_id, [e.to_dict() for e in eps]
 
 
 def _prepare_resume(
@@ -397,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--episodes", type=int, help="sample N episodes from seeds S..S+N-1")
     src.add_argument("--episode-file", type=Path, help="episode set JSON (envs/episodes/)")
+    p.add_argument("--tag", default=None, help="only the episode file's episodes with this tag")
     p.add_argument("--seed", type=int, default=0, help="first seed with --episodes")
     p.add_argument("--workers", type=int, default=1, help="parallel episodes (0: in-process)")
     p.add_argument("--backend", choices=["local", "ray"], default="local")
@@ -432,6 +438,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             n_episodes=args.episodes,
             seed=args.seed,
             episode_file=args.episode_file,
+            tag=args.tag,
             workers=args.workers,
             backend=args.backend,
             rerun=args.rerun,

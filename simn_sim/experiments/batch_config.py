@@ -34,6 +34,7 @@ class BatchConfig(Config):
     n_episodes: int | None = None
     seed: int = 0
     episode_file: Path | None = None
+    tag: str | None = None  # run only the episode file's episodes carrying this tag
     workers: int = 1
     backend: str = "local"
     rerun: bool = False
@@ -65,6 +66,8 @@ class BatchConfig(Config):
     def validate(self) -> None:
         if (self.episode_file is None) == (self.n_episodes is None):
             raise BatchError("give exactly one of --episodes N and --episode-file F")
+        if self.tag is not None and self.episode_file is None:
+            raise BatchError("--tag selects from an episode file; give --episode-file")
         if self.n_episodes is not None and self.n_episodes < 1:
             raise BatchError(f"--episodes must be >= 1, got {self.n_episodes}")
         if self.workers < 0:

@@ -202,9 +202,7 @@ class CostMap:
         wq = np.full(len(q), self.cfg.unknown_weight)
         wi = self.weight[ij[inside, 0], ij[inside, 1]]
         # a cell blocked on the grid but free at the exact point: weigh it as the margin
-        wq[inside] = np.where(
-            np.isfinite(wi), wi, self.cfg.unknown_weight * self.cfg.margin_weight
-        )
+        wq[inside] = np.where(np.isfinite(wi), wi, self.cfg.unknown_weight * self.cfg.margin_weight)
         cost = float(np.sum(wq * np.repeat(L / n, n)))
         end = p[-1]
         if np.hypot(*(end - self.goal)) <= self.cfg.resolution:
