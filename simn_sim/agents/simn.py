@@ -352,11 +352,15 @@ class SimnAgent:
         if raw is None:
             return None, math.inf
         c_raw = cm.path_cost(raw)
-        safety = self.obstacles.safety
-        p = shortcut_path(raw, safety, self.rng, iterations=30)
+        # shortcuts only where the planning margin holds (a tight doorway keeps the map's
+        # cells, which run through its middle), then pushed from obstacles
+        p = shortcut_path(raw, self.obstacles.planning, self.rng, iterations=30)
         if self.cfg.path_clearance > 0:
             p = push_from_obstacles(
-                p, safety, self.cfg.path_clearance, also_from=self.obstacles.shadow_model()
+                p,
+                self.obstacles.safety,
+                self.cfg.path_clearance,
+                also_from=self.obstacles.shadow_model(),
             )
         c = cm.path_cost(p)
         return (p, c) if c <= 1.05 * c_raw else (raw, c_raw)
@@ -433,7 +437,11 @@ class SimnAgent:
         self.steps += 1
         T_odom = self._odom_T(obs)
         if self.bump.update(float(self._last_cmd[0]), inv_T(self.T_odom_prev) @ T_odom):
-            self.obstacles.add_bump(self.world.pose, self.cfg.obstacles.collision.robot_radius)
+            self.obstacles.add_bump(
+                self.world.pose,
+                self.cfg.obstacles.collision.robot_radius,
+                self.bump.contact_angle,
+            )
             self.path = None
         self.T_odom_prev = T_odom
         self._plan_ms = None

@@ -72,7 +72,10 @@ class EnvConfig(Config):
     v_max: float = 1.0
     w_max: float = 1.5
     success_distance: float = 0.36
-    max_episode_steps: int = 500
+    # 100 s at 10 Hz: office_nav_v2 goals lie up to 20 m away, which takes ~250 steps at the
+    # top speed; 1000 steps give about 4x the shortest drive (Habitat PointNav: 500 steps of
+    # 0.25 m for at most 30 m)
+    max_episode_steps: int = 1000
     max_collisions: int | None = None  # end the episode after this many collisions
     min_geodesic: float = 3.0  # sampled episodes: goal geodesic distance range (m)
     max_geodesic: float = 14.0

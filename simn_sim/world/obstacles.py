@@ -97,9 +97,10 @@ class ObstacleMap:
         )
         self.add(pts)
 
-    def add_bump(self, T_world_base: np.ndarray, robot_radius: float) -> None:
-        """An obstacle just ahead of the hull that the camera cannot see: an arc of points."""
-        a = np.radians(np.linspace(-40, 40, 9))
+    def add_bump(self, T_world_base: np.ndarray, robot_radius: float, angle: float = 0.0) -> None:
+        """An obstacle at the hull that the camera cannot see: an arc of points 80 deg wide
+        centred on ``angle`` (rad, base frame: 0 is straight ahead)."""
+        a = angle + np.radians(np.linspace(-40, 40, 9))
         r = robot_radius + 0.03
         local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
         pts = transform_points(T_world_base, local)
