@@ -2,22 +2,32 @@
 RRTstar vs the exact shortest path, all judged by the same collision checker.
 
 For each layout, the oracle drives the first ``--drives`` episodes of the episode set while the
-robot's own depth camera (320x240, the ``simn`` agent's perception: back-projection, floor /
-obstacle labels from the floor plane) fills a :class:`CollisionChecker`, posed with the true pose
+robot's own depth camera (320x240, ideal sensing, every 4th pixel back-projected, floor / obstacle
+labels from the height above the floor) fills a :class:`CollisionChecker`, posed with the true pose
 (the benchmark is about planning, not tracking). Queries are then sampled in the explored part
 of that map; the exact reference is the visibility-graph shortest path
-(:class:`FreeSpace2D`) around the checker's occupied cells. Timing helpers and the table come
-from ``bench_planning_synthetic.py``.
+(:class:`FreeSpace2D`) around the checker's occupied cells.
 
-The first-solution run of every planner is repeated ``--repeats`` times with the same seed (same
-iterations for ours) and its median time is kept: the machine is shared, and single timings
-jump by several milliseconds when another process takes the core.
+Protocol (``bench_planning_synthetic.run_query``, the same for every planner): same queries
+(start, goal), same collision checker (OMPL's validity and motion checks call it), same step /
+range 0.5 m and goal bias 0.05, seed ``1000 * layout index + query index + 1`` for ours (OMPL's
+RNG is process-global and takes only the first seed, see ``OmplRRTStar``).
+
+- First solution: ``stop_at_first_solution``, no smoothing, at most ``--first-timeout-ms``,
+  ``--repeats`` runs per query and the median time (the machine is shared and single timings jump
+  by milliseconds; ours repeat the same draw, OMPL's repeats are new draws).
+- Fixed budget: ``--budget-ms`` wall clock for every planner, no iteration cap. Lengths are
+  compared raw vs raw (tree paths), own smoother vs own smoother (our shortcut smoothing vs
+  OMPL's ``PathSimplifier.simplifyMax``) and through one common smoother (our shortcut on every
+  raw path).
+- Times are reported as the ratio of mean first-solution times (speedup = mean other / mean
+  goal-vector, the paper-style statistic) beside the paired median of the per-query ratios, on
+  the queries both solved; success counts of each planner on all queries.
 
 Also timed per query: the closed-loop agent's call (``RRTStarConfig(time_budget_ms=0,
-max_iterations=600)``, shortcut on, seed = query index), ms per plan. ``--open-rays`` adds
-``goal_vector_open``, the checker-aware sampler (``GoalVectorConfig(open_rays=True)``), run
-interleaved with the others on the same queries. ``--maps-cache F.pkl`` keeps the built maps
-for dev runs.
+max_iterations=600)``, shortcut on), ms per plan. ``--open-rays`` adds ``goal_vector_open``, the
+checker-aware sampler (``GoalVectorConfig(open_rays=True)``), run interleaved with the others on
+the same queries. ``--maps-cache F.pkl`` keeps the built maps for dev runs.
 
 Usage: python scripts/bench_planning.py [--layouts -1 1 2 3] [--queries 15] [--repeats 3]
     [--open-rays] [--maps-cache F.pkl] [--out F.json]
@@ -42,13 +52,13 @@ import numpy as np
 
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
-from simn_sim.agents.simn import label_points_world, strided
 from simn_sim.env.episodes import EpisodeSet
-from simn_sim.geometry.camera import backproject
+from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.freespace import FreeSpace2D
 from simn_sim.geometry.se3 import transform_points
 from simn_sim.paths import envs_dir
 from simn_sim.planning import CollisionChecker, CollisionConfig, GoalVectorConfig, RRTStarConfig
+from simn_sim.semantics import FLOOR, OBSTACLE
 
 HERE = Path(__file__).resolve().parent
 _spec = importlib.util.spec_from_file_location("bps", HERE / "bench_planning_synthetic.py")
@@ -56,9 +66,35 @@ bps = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bps)
 
 
+def strided(depth: np.ndarray, intr: Intrinsics, stride: int) -> tuple[np.ndarray, Intrinsics]:
+    """Every ``stride``-th pixel of ``depth`` and the intrinsics of that sub-image."""
+    d = depth[::stride, ::stride]
+    return d, Intrinsics(
+        d.shape[1],
+        d.shape[0],
+        intr.fx / stride,
+        intr.fy / stride,
+        intr.cx / stride,
+        intr.cy / stride,
+    )
+
+
+def label_points_world(points_world: np.ndarray, floor_tol: float, robot_height: float):
+    """Floor (|z| < floor_tol) / obstacle (floor_tol <= z <= robot_height) / unknown labels of
+    (N, 3) world points (true pose, floor at z = 0)."""
+    z = points_world[:, 2]
+    lab = np.zeros(len(z), np.int8)
+    lab[np.abs(z) < floor_tol] = FLOOR
+    lab[(z >= floor_tol) & (z <= robot_height)] = OBSTACLE
+    return lab
+
+
 def build_map(layout_seed, episodes, drives: int, max_steps: int = 400) -> CollisionChecker:
     env = gym.make(
-        "SimnOffice-v0", config={"width": 320, "height": 240, "layout_seed": layout_seed}
+        "SimnOffice-v0",
+        # ideal sensing: exact depth and actuation (the map is built at the true pose; the
+        # benchmark is about planning, and noise would make the maps depend on the env's draws)
+        config={"width": 320, "height": 240, "layout_seed": layout_seed, "sensing": "ideal"},
     )
     checker = CollisionChecker(CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0))
     for ep in episodes[:drives]:
@@ -114,17 +150,20 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    args.first_only = False
     load0 = os.getloadavg()
     eps = EpisodeSet.load(args.episode_file).episodes
     gvs = ["goal_vector"] + (["goal_vector_open"] if args.open_rays else [])
     names = gvs + ["uniform"] + ([] if args.no_ompl else ["ompl"])
+    base = RRTStarConfig()
     ompl_cls = None
     if not args.no_ompl:
         from simn_sim.planning.ompl_rrtstar import OmplRRTStar, OmplRRTStarConfig
 
-        ompl_cls = (OmplRRTStarConfig(), OmplRRTStar)
-    base = RRTStarConfig()
+        # same range and goal bias as ours; OMPL's own simplifier on the budget runs
+        ompl_cls = (
+            OmplRRTStarConfig(range=base.step_size, goal_bias=base.goal_bias, simplify=True),
+            OmplRRTStar,
+        )
     gv = {"goal_vector": GoalVectorConfig(), "goal_vector_open": GoalVectorConfig(open_rays=True)}
     rows = []
     closed_loop = {n: [] for n in gvs}
@@ -132,7 +171,7 @@ def main() -> None:
     cache = {}
     if args.maps_cache and Path(args.maps_cache).exists():
         cache = pickle.loads(Path(args.maps_cache).read_bytes())
-    for lay in args.layouts:
+    for li, lay in enumerate(args.layouts):
         seed_l = None if lay < 0 else lay
         lay_eps = [e for e in eps if e.layout_seed == seed_l]
         if not lay_eps:
@@ -144,72 +183,59 @@ def main() -> None:
         b = checker.obstacle_bounds()
         m = types.SimpleNamespace(bounds=(b[0], b[1], b[2], b[3]))
         qs = bps.make_queries(checker, fs, m, rng, args.queries, args.dmin, args.dmax)
-        print(f"layout {seed_l}: map {b}, {checker.n_points} points, {len(qs)} queries")
-        for qi, (s, g, exact, _) in enumerate(qs):
-            row = {"layout": seed_l, "exact": exact}
-            for name in names:
-                cfg1 = base.replace(
-                    stop_at_first_solution=True,
-                    shortcut=False,
-                    time_budget_ms=args.first_timeout_ms,
-                    max_iterations=10**7,
+        print(f"layout {seed_l}: map {b}, {checker.n_points} points, {len(qs)} queries", flush=True)
+        for qi, (s, g, exact, visible) in enumerate(qs):
+            seed = 1000 * li + qi + 1  # OMPL rejects seed 0
+            row = dict(
+                layout=seed_l,
+                start=s.tolist(),
+                goal=g.tolist(),
+                exact=exact,
+                line_of_sight=visible,
+                seed=seed,
+            )
+            row.update(
+                bps.run_query(
+                    checker,
+                    m,
+                    s,
+                    g,
+                    exact,
+                    seed,
+                    names,
+                    base,
+                    gv,
+                    ompl_cls,
+                    first_timeout_ms=args.first_timeout_ms,
+                    budget_ms=args.budget_ms,
+                    repeats=args.repeats,
                 )
-                times = []
-                for _ in range(max(1, args.repeats)):
-                    p, _ = bps.run_planner(name, checker, m, cfg1, gv, ompl_cls, qi, s, g)
-                    st = getattr(p, "stats", None)
-                    if st is None or st.first_solution_time_s is None:
-                        times = []
-                        break
-                    times.append(st.first_solution_time_s * 1e3)
-                t1 = float(np.median(times)) if times else None
-                it1 = getattr(st, "first_solution_iteration", None) if times else None
-                cfg2 = base.replace(time_budget_ms=args.budget_ms, max_iterations=10**7)
-                p2, path = bps.run_planner(name, checker, m, cfg2, gv, ompl_cls, qi, s, g)
-                ok = path is not None and checker.path_free(path)
-                L = float(np.sum(np.hypot(*np.diff(path, axis=0).T))) if ok else None
-                if name in gvs:
-                    # the closed-loop agent's call: 600 iterations, no time budget, shortcut on
-                    cfg3 = base.replace(time_budget_ms=0, max_iterations=600)
-                    t0 = time.perf_counter()
-                    p3, path3 = bps.run_planner(name, checker, m, cfg3, gv, ompl_cls, qi, s, g)
-                    closed_loop[name].append(
-                        dict(ms=(time.perf_counter() - t0) * 1e3, ok=path3 is not None)
-                    )
-                row[name] = dict(
-                    first_ok=t1 is not None,
-                    first_ms=t1,
-                    first_iter=it1,
-                    first_ms_repeats=times,
-                    budget_ok=ok,
-                    raw_ratio=L / exact if ok else None,
-                    smooth_ratio=L / exact if ok else None,
+            )
+            for name in gvs:
+                # the closed-loop agent's call: 600 iterations, no time budget, shortcut on
+                cfg3 = base.replace(time_budget_ms=0, max_iterations=600)
+                t0 = time.perf_counter()
+                _, path3 = bps.run_planner(name, checker, m, cfg3, gv, ompl_cls, seed, s, g)
+                closed_loop[name].append(
+                    dict(ms=(time.perf_counter() - t0) * 1e3, ok=path3 is not None)
                 )
             rows.append(row)
     if args.maps_cache and not Path(args.maps_cache).exists():
         Path(args.maps_cache).write_bytes(pickle.dumps(cache))
     summ = bps.summarise(rows, names, args.budget_ms)
-    it_r = [
-        r["uniform"]["first_iter"] / max(r["goal_vector"]["first_iter"], 1)
-        for r in rows
-        if r["uniform"]["first_ok"] and r["goal_vector"]["first_ok"]
-    ]
-    if it_r:
-        speed_it = dict(median=float(np.median(it_r)), geomean=float(np.exp(np.mean(np.log(it_r)))))
-    else:
-        speed_it = {}
-    speed, speed_it, loop = {}, {}, {}
+    versus, iter_ratio, loop = {}, {}, {}
     for n in gvs:
-        speed[n] = bps.paired_speedup(rows, n, "uniform")
-        it_r = [
-            r["uniform"]["first_iter"] / max(r[n]["first_iter"], 1)
-            for r in rows
-            if r["uniform"]["first_ok"] and r[n]["first_ok"]
-        ]
-        if it_r:
-            speed_it[n] = dict(
-                median=float(np.median(it_r)), geomean=float(np.exp(np.mean(np.log(it_r))))
-            )
+        for other in [o for o in names if o not in gvs]:
+            versus[f"{n}_vs_{other}"] = bps.compare(rows, n, other)
+            it_r = [
+                r[other]["first_iter"] / max(r[n]["first_iter"], 1)
+                for r in rows
+                if r[other]["first_ok"] and r[n]["first_ok"]
+            ]
+            if it_r:
+                iter_ratio[f"{other} / {n}"] = dict(
+                    median=float(np.median(it_r)), geomean=float(np.exp(np.mean(np.log(it_r))))
+                )
         cl = closed_loop[n]
         loop[n] = dict(
             ms_per_plan_mean=float(np.mean([c["ms"] for c in cl])),
@@ -223,24 +249,35 @@ def main() -> None:
         "command": "python " + " ".join(sys.argv),
         "load_average_at_start": load0,
         "load_average_at_end": os.getloadavg(),
+        "protocol": dict(
+            first_solution=f"stop at the first solution, no smoothing, timeout "
+            f"{args.first_timeout_ms:g} ms, median of {args.repeats} runs",
+            budget=f"{args.budget_ms:g} ms wall clock for every planner, no iteration cap",
+            lengths="raw vs raw; own smoother (ours: shortcut, OMPL: PathSimplifier.simplifyMax); "
+            "common smoother (our shortcut on every raw path)",
+            time_statistic="ratio_of_means = mean t_other / mean t_ours (speedup of ours); "
+            "median = paired median of t_other / t_ours; on queries both solved",
+            seeds="ours: 1000 * layout index + query index + 1; OMPL: process-global RNG, "
+            "seeded once with the first query's seed",
+            collision=checker.cfg.to_dict(),
+            rrt=_json_cfg(base),
+            ompl=ompl_cls[0].to_dict() if ompl_cls else None,
+        ),
         "goal_vector_config": _json_cfg(gv["goal_vector"]),
         "queries": len(rows),
         "summary": summ,
-        "goal_vector_speedup_vs_uniform": speed["goal_vector"],
-        "goal_vector_iteration_ratio_vs_uniform": speed_it.get("goal_vector", {}),
-        "closed_loop_600_iterations": loop["goal_vector"],
-        **(
-            {
-                "goal_vector_open_config": _json_cfg(gv["goal_vector_open"]),
-                "goal_vector_open_speedup_vs_uniform": speed["goal_vector_open"],
-                "goal_vector_open_iteration_ratio_vs_uniform": speed_it.get("goal_vector_open", {}),
-                "goal_vector_open_closed_loop_600_iterations": loop["goal_vector_open"],
-            }
-            if args.open_rays
-            else {}
-        ),
+        "comparisons": versus,
+        "first_iteration_ratio": iter_ratio,
+        "closed_loop_600_iterations": loop,
         "exact_length_median_m": float(np.median([r["exact"] for r in rows])),
     }
+    print(json.dumps(out, indent=1))
+    print()
+    print(bps.table(summ, names, args.budget_ms))
+    for k, v in versus.items():
+        a_, b_ = k.split("_vs_")
+        print()
+        print(bps.describe(v, a_, b_))
     print(json.dumps(out, indent=1))
     if args.out:
         Path(args.out).write_text(json.dumps({**out, "rows": rows}, indent=1, default=float))

@@ -6,9 +6,14 @@ distance in [--dmin, --dmax], exact geodesic finite):
 
 - first solution: each planner runs with ``stop_at_first_solution`` up to --first-timeout-ms;
   time to first solution and success;
-- fixed budget: each planner runs for --budget-ms; path length (raw tree path, and after
-  shortcutting for ours / OMPL's PathSimplifier) relative to the exact geodesic
-  (``simn_sim.geometry.freespace.FreeSpace2D`` on the true footprints, robot radius = inflation).
+- fixed budget: each planner runs for --budget-ms; path length relative to the exact geodesic
+  (``simn_sim.geometry.freespace.FreeSpace2D`` on the true footprints, robot radius = inflation)
+  raw (tree path), after each planner's own smoother (ours: shortcut; OMPL: its
+  PathSimplifier.simplifyMax), and after one common smoother (our shortcut on every raw path).
+
+The protocol is :func:`run_query` (shared with ``bench_planning.py``). Times: the ratio of mean
+first-solution times (speedup = mean other / mean goal_vector) beside the paired median of the
+per-query ratios. OMPL's RNG is process-global and seeded once (``OmplRRTStar``), ours per query.
 
 Usage:
     python scripts/bench_planning_synthetic.py --sizes 3x2,8x2 --maps 3 --queries 10 \
@@ -87,6 +92,137 @@ def run_planner(name, c, m, cfg, gv_cfg, ompl_cls, seed, start, goal):
     return p, path
 
 
+def run_query(
+    c,
+    m,
+    start,
+    goal,
+    exact,
+    seed,
+    names,
+    base,
+    gv_cfg,
+    ompl_cls,
+    *,
+    first_timeout_ms: float,
+    budget_ms: float,
+    repeats: int = 1,
+    first_only: bool = False,
+) -> dict[str, dict[str, Any]]:
+    """One query, every planner in ``names``, one protocol for all of them (the benchmarks' core).
+
+    - **First solution:** ``stop_at_first_solution``, no smoothing, at most ``first_timeout_ms``,
+      ``repeats`` runs with the same seed; ``first_ms`` is the median of the runs, ``first_ok``
+      means every run found a path. Ours repeat the same draw (seeded per query); OMPL's RNG is
+      process-global and seeded once, so its repeats are different draws.
+    - **Fixed budget:** the same ``budget_ms`` wall-clock budget for every planner (no iteration
+      cap); ours shortcut-smooths its path (``base.shortcut``), OMPL runs its own
+      ``PathSimplifier.simplifyMax`` (``OmplRRTStarConfig.simplify``). Lengths: ``raw_len``
+      (tree path), ``smooth_len`` (each planner's own smoother), ``common_len`` (the raw path
+      through our ``shortcut_path`` with the query's seed: one smoother for all), each also as
+      a ratio to ``exact``. Every path is judged by the same checker; a path that is not free
+      counts as a failure.
+    """
+    cfg1 = base.replace(
+        stop_at_first_solution=True,
+        shortcut=False,
+        time_budget_ms=first_timeout_ms,
+        max_iterations=10**7,
+    )
+    cfg2 = base.replace(time_budget_ms=budget_ms, max_iterations=10**7)
+    row: dict[str, dict[str, Any]] = {}
+    for name in names:
+        times, iters = [], []
+        for _ in range(max(1, repeats)):
+            p, _ = run_planner(name, c, m, cfg1, gv_cfg, ompl_cls, seed, start, goal)
+            st = p.stats
+            if st.first_solution_time_s is not None:
+                times.append(st.first_solution_time_s * 1e3)
+                iters.append(st.first_solution_iteration)
+        ok1 = len(times) == max(1, repeats)
+        r: dict[str, Any] = dict(
+            first_ok=ok1,
+            first_ms=float(np.median(times)) if ok1 else None,
+            first_iter=float(np.median(iters)) if ok1 else None,
+            first_ms_repeats=times,
+            first_iter_repeats=iters,
+        )
+        raw = path = None
+        p2 = None
+        if not first_only:
+            p2, path = run_planner(name, c, m, cfg2, gv_cfg, ompl_cls, seed, start, goal)
+            raw = p2.raw_path
+        ok_raw = raw is not None and bool(c.path_free(raw))
+        ok = path is not None and bool(c.path_free(path))
+        common, common_ms = None, None
+        if ok_raw:
+            t0 = time.perf_counter()
+            common = shortcut_path(raw, c, np.random.default_rng(seed), base.shortcut_iterations)
+            common_ms = (time.perf_counter() - t0) * 1e3
+        raw_len = path_length(raw) if ok_raw else None
+        smooth_len = path_length(path) if ok else None
+        common_len = path_length(common) if ok_raw else None
+        simp = getattr(p2, "simplify_time_s", None)
+        r.update(
+            budget_ok=ok,
+            iterations=p2.stats.iterations if p2 is not None else None,
+            raw_len=raw_len,
+            smooth_len=smooth_len,
+            common_len=common_len,
+            raw_ratio=raw_len / exact if ok_raw else None,
+            smooth_ratio=smooth_len / exact if ok else None,
+            common_ratio=common_len / exact if ok_raw else None,
+            own_simplifier_ms=simp * 1e3 if simp is not None else None,
+            common_smoother_ms=common_ms,
+        )
+        row[name] = r
+    return row
+
+
+def table(summ, names, budget_ms) -> str:
+    """Markdown table of :func:`summarise` (lengths are medians of length / exact)."""
+    lines = [
+        "| planner | first-solution success | first solution ms, median (mean) "
+        f"| iterations, median | success @{budget_ms:.0f} ms | length / exact: raw "
+        "| own smoother | common smoother |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for n in names:
+        s_ = summ[n]
+        lines.append(
+            f"| {n} | {s_['first_solved']}/{s_['n']} | {s_['first_ms_median']:.2f} "
+            f"({s_['first_ms_mean']:.2f}) | {s_['first_iter_median']:.0f} | "
+            f"{s_['budget_solved']}/{s_['n']} | {s_['raw_ratio_median']:.3f} | "
+            f"{s_['smooth_ratio_median']:.3f} | {s_['common_ratio_median']:.3f} |"
+        )
+    return "\n".join(lines)
+
+
+def describe(cmp, a, b) -> str:
+    """One paragraph for :func:`compare`."""
+    t = cmp["first_solution_time"]
+    out = [
+        f"{a} vs {b}, {cmp['queries']} queries: first solution {cmp['first_solved'][a]} vs "
+        f"{cmp['first_solved'][b]}, within the budget {cmp['budget_solved'][a]} vs "
+        f"{cmp['budget_solved'][b]}."
+    ]
+    if t:
+        out.append(
+            f"First-solution time over the {t['n']} queries both solved: mean {t['mean_ms'][0]:.2f} "
+            f"vs {t['mean_ms'][1]:.2f} ms, speedup (mean {b} / mean {a}) "
+            f"{t['ratio_of_means']:.2f}x (every repeat: {t['ratio_of_means_all_repeats']:.2f}x); "
+            f"paired median of t_{b} / t_{a} {t['median']:.2f}x, geomean {t['geomean']:.2f}x."
+        )
+    lr = cmp["length_ratio"]
+    out.append(
+        f"Length {a} / {b}, median (mean) over queries both solved: raw vs raw "
+        f"{lr['raw']['median']:.3f} ({lr['raw']['mean']:.3f}, n={lr['raw']['n']}); own smoother "
+        f"vs own smoother {lr['smooth']['median']:.3f} ({lr['smooth']['mean']:.3f}); common "
+        f"smoother {lr['common']['median']:.3f} ({lr['common']['mean']:.3f})."
+    )
+    return " ".join(out)
+
+
 def run_route(c, m, base, gv_cfg, seed, start, goal, exact, args):
     """SIMN pipeline on an office map: route_subgoal over the map's topological graph gives the
     legs (start -> next node anchor -> ... -> goal); each leg is planned by goal-vector RRT*.
@@ -154,47 +290,107 @@ def run_route(c, m, base, gv_cfg, seed, start, goal, exact, args):
     )
 
 
+def _median(v):
+    return float(np.median(v)) if len(v) else math.nan
+
+
 def summarise(rows, names, budget_ms):
+    """Per planner: successes (counts and fractions), first-solution time and iterations,
+    length / exact medians (raw, own smoother, common smoother)."""
     out = {}
     for name in names:
         r = [x[name] for x in rows]
         ok = np.array([x["first_ok"] for x in r])
         t = np.array([x["first_ms"] if x["first_ok"] else np.nan for x in r])
         okb = np.array([x["budget_ok"] for x in r])
-        lr = np.array([x["raw_ratio"] for x in r if x["budget_ok"]])
-        ls = np.array([x["smooth_ratio"] for x in r if x["budget_ok"]])
+        lr = [x["raw_ratio"] for x in r if x.get("raw_ratio") is not None]
+        ls = [x["smooth_ratio"] for x in r if x.get("smooth_ratio") is not None]
+        lc = [x["common_ratio"] for x in r if x.get("common_ratio") is not None]
         its = [x["first_iter"] for x in r if x["first_ok"] and x["first_iter"] is not None]
+        simp = [x["own_simplifier_ms"] for x in r if x.get("own_simplifier_ms") is not None]
         out[name] = dict(
             n=len(r),
-            first_iter_median=float(np.median(its)) if its else math.nan,
+            first_solved=int(ok.sum()),
             first_success=float(ok.mean()),
+            first_iter_median=_median(its),
             first_ms_median=float(np.nanmedian(t)) if ok.any() else math.nan,
             first_ms_mean=float(np.nanmean(t)) if ok.any() else math.nan,
+            budget_ms=budget_ms,
+            budget_solved=int(okb.sum()),
             budget_success=float(okb.mean()),
-            raw_ratio_median=float(np.median(lr)) if len(lr) else math.nan,
-            smooth_ratio_median=float(np.median(ls)) if len(ls) else math.nan,
+            raw_ratio_median=_median(lr),
+            smooth_ratio_median=_median(ls),
             smooth_ratio_p90=float(np.percentile(ls, 90)) if len(ls) else math.nan,
+            common_ratio_median=_median(lc),
+            own_simplifier_ms_mean=float(np.mean(simp)) if simp else None,
         )
     return out
 
 
 def paired_speedup(rows, a, b):
-    """Median and geometric mean over queries both solved of t_b / t_a, and of the means."""
-    ta, tb = [], []
+    """Time to first solution of ``b`` over ``a`` on the queries both solved (every repeat):
+    ``ratio_of_means`` = mean t_b / mean t_a (the paper-style statistic: the speedup of ``a``
+    when above 1), ``median`` and ``geomean`` of the per-query ratios t_b / t_a,
+    ``ratio_of_medians``, and ``ratio_of_means_all_repeats`` (every run's time, not the
+    per-query median)."""
+    ta, tb, ra, rb = [], [], [], []
     for x in rows:
         if x[a]["first_ok"] and x[b]["first_ok"]:
             ta.append(x[a]["first_ms"])
             tb.append(x[b]["first_ms"])
+            ra.extend(x[a].get("first_ms_repeats") or [x[a]["first_ms"]])
+            rb.extend(x[b].get("first_ms_repeats") or [x[b]["first_ms"]])
     if not ta:
         return {}
     ta, tb = np.array(ta), np.array(tb)
     r = tb / np.maximum(ta, 1e-3)
     return dict(
         n=len(r),
+        mean_ms=[float(ta.mean()), float(tb.mean())],
+        ratio_of_means=float(tb.mean() / ta.mean()),
         median=float(np.median(r)),
         geomean=float(np.exp(np.mean(np.log(r)))),
-        ratio_of_means=float(tb.mean() / ta.mean()),
         ratio_of_medians=float(np.median(tb) / np.median(ta)),
+        ratio_of_means_all_repeats=float(np.mean(rb) / np.mean(ra)),
+    )
+
+
+def paired_lengths(rows, a, b):
+    """Path length of ``a`` over ``b`` on the queries both solved within the budget, per pair
+    of like paths: raw vs raw, own smoother vs own smoother (ours: shortcut; OMPL:
+    PathSimplifier), common smoother vs common smoother. Median and mean of the per-query
+    ratios, and the query count."""
+    out = {}
+    for key in ("raw_len", "smooth_len", "common_len"):
+        q = [
+            x[a][key] / x[b][key]
+            for x in rows
+            if x[a].get(key) is not None and x[b].get(key) is not None and x[b][key] > 0
+        ]
+        out[key.removesuffix("_len")] = dict(
+            n=len(q),
+            median=_median(q),
+            mean=float(np.mean(q)) if q else math.nan,
+        )
+    return out
+
+
+def compare(rows, a, b):
+    """``a`` (ours) against ``b`` on the same queries: success counts, first-solution time
+    (:func:`paired_speedup`, speedup of ``a`` = mean t_b / mean t_a) and lengths
+    (:func:`paired_lengths`, a / b)."""
+    return dict(
+        queries=len(rows),
+        first_solved={
+            a: int(sum(x[a]["first_ok"] for x in rows)),
+            b: int(sum(x[b]["first_ok"] for x in rows)),
+        },
+        budget_solved={
+            a: int(sum(x[a]["budget_ok"] for x in rows)),
+            b: int(sum(x[b]["budget_ok"] for x in rows)),
+        },
+        first_solution_time=paired_speedup(rows, a, b),
+        length_ratio=paired_lengths(rows, a, b),
     )
 
 
@@ -220,6 +416,9 @@ def main() -> None:
     ap.add_argument("--first-timeout-ms", type=float, default=1000.0)
     ap.add_argument("--no-ompl", action="store_true")
     ap.add_argument("--first-only", action="store_true", help="skip the fixed-budget runs")
+    ap.add_argument(
+        "--repeats", type=int, default=1, help="first-solution runs per query (median time)"
+    )
     ap.add_argument(
         "--paper-sampler",
         action="store_true",
@@ -292,35 +491,24 @@ def main() -> None:
                     start=s.tolist(), goal=g.tolist(), exact=exact, line_of_sight=visible
                 )
                 seed = 1000 * mi + qi + 1  # OMPL rejects seed 0
-                for name in names:
-                    cfg1 = base.replace(
-                        stop_at_first_solution=True,
-                        shortcut=False,
-                        time_budget_ms=args.first_timeout_ms,
-                        max_iterations=10**7,
+                row.update(
+                    run_query(
+                        c,
+                        m,
+                        s,
+                        g,
+                        exact,
+                        seed,
+                        names,
+                        base,
+                        gv_cfg,
+                        ompl_cls,
+                        first_timeout_ms=args.first_timeout_ms,
+                        budget_ms=args.budget_ms,
+                        repeats=args.repeats,
+                        first_only=args.first_only,
                     )
-                    p, _ = run_planner(name, c, m, cfg1, gv_cfg, ompl_cls, seed, s, g)
-                    st = p.stats
-                    ok = st.first_solution_time_s is not None
-                    cfg2 = base.replace(time_budget_ms=args.budget_ms, max_iterations=10**7)
-                    if args.first_only:
-                        p2, path2 = p, None
-                    else:
-                        p2, path2 = run_planner(name, c, m, cfg2, gv_cfg, ompl_cls, seed, s, g)
-                    okb = path2 is not None
-                    if okb:
-                        assert c.path_free(path2), f"{name} returned a colliding path"
-                    row[name] = dict(
-                        first_ok=ok,
-                        first_ms=st.first_solution_time_s * 1e3 if ok else None,
-                        first_iter=st.first_solution_iteration,
-                        budget_ok=okb,
-                        raw_len=p2.stats.cost if okb else None,
-                        smooth_len=path_length(path2) if okb else None,
-                        raw_ratio=p2.stats.cost / exact if okb else None,
-                        smooth_ratio=path_length(path2) / exact if okb else None,
-                        iterations=p2.stats.iterations,
-                    )
+                )
                 if args.route and m.graph is not None:
                     row["goal_vector+route"] = run_route(
                         c, m, base, gv_cfg["goal_vector"], seed, s, g, exact, args
@@ -348,28 +536,14 @@ def main() -> None:
             f"{len(rows)} queries, {args.dmin}-{args.dmax} m, "
             f"line of sight {results['sizes'][size]['line_of_sight_fraction']:.0%}"
         )
-        print(
-            "| planner | first-solution success | first solution median / mean ms "
-            "| median iterations "
-            f"| success @{args.budget_ms:.0f} ms | length/exact raw (median) "
-            "| smoothed median / p90 |"
-        )
-        print("|---|---|---|---|---|---|---|")
-        for n in names_here:
-            s_ = summ[n]
-            print(
-                f"| {n} | {s_['first_success']:.0%} | {s_['first_ms_median']:.1f} / "
-                f"{s_['first_ms_mean']:.1f} | {s_['first_iter_median']:.0f} | "
-                f"{s_['budget_success']:.0%} | "
-                f"{s_['raw_ratio_median']:.3f} | {s_['smooth_ratio_median']:.3f} / "
-                f"{s_['smooth_ratio_p90']:.3f} |"
-            )
+        print(table(summ, names_here, args.budget_ms))
         for n, sp in speed.items():
             if sp:
+                label = n if "/" in n else f"{n} / goal_vector"
                 print(
-                    f"first-solution time {n} / goal_vector over {sp['n']} queries solved by "
-                    f"both: median {sp['median']:.2f}x, geomean {sp['geomean']:.2f}x, "
-                    f"ratio of means {sp['ratio_of_means']:.2f}x"
+                    f"first-solution time {label} over {sp['n']} queries solved by "
+                    f"both: ratio of means {sp['ratio_of_means']:.2f}x, paired median "
+                    f"{sp['median']:.2f}x, geomean {sp['geomean']:.2f}x"
                 )
     all_rows = [r for v in results["sizes"].values() for r in v["rows"]]
     pooled = summarise(all_rows, names, args.budget_ms)
@@ -379,22 +553,19 @@ def main() -> None:
             n: paired_speedup(all_rows, "goal_vector", n) for n in names if n != "goal_vector"
         },
     )
+    if "ompl_rrtstar" in names:
+        results["pooled"]["goal_vector_vs_ompl"] = compare(all_rows, "goal_vector", "ompl_rrtstar")
     print(f"\n## all maps pooled ({len(all_rows)} queries)")
-    for n in names:
-        s_ = pooled[n]
-        print(
-            f"| {n} | {s_['first_success']:.0%} | {s_['first_ms_median']:.1f} / "
-            f"{s_['first_ms_mean']:.1f} | {s_['first_iter_median']:.0f} | "
-            f"{s_['budget_success']:.0%} | {s_['raw_ratio_median']:.3f} | "
-            f"{s_['smooth_ratio_median']:.3f} / {s_['smooth_ratio_p90']:.3f} |"
-        )
+    print(table(pooled, names, args.budget_ms))
     for n, sp in results["pooled"]["speedup_vs_goal_vector"].items():
         if sp:
             print(
-                f"first-solution time {n} / goal_vector over {sp['n']} queries: median "
-                f"{sp['median']:.2f}x, geomean {sp['geomean']:.2f}x, ratio of means "
-                f"{sp['ratio_of_means']:.2f}x"
+                f"first-solution time {n} / goal_vector over {sp['n']} queries: ratio of means "
+                f"{sp['ratio_of_means']:.2f}x, paired median {sp['median']:.2f}x, geomean "
+                f"{sp['geomean']:.2f}x"
             )
+    if "goal_vector_vs_ompl" in results["pooled"]:
+        print(describe(results["pooled"]["goal_vector_vs_ompl"], "goal_vector", "ompl_rrtstar"))
     results["config"] = dict(
         rrt=base.to_dict(),
         goal_vector=gv_cfg["goal_vector"].to_dict(),

@@ -222,3 +222,63 @@ def test_replay_pool_is_bounded_and_keeps_a_uniform_sample():
 def test_mapping_package_does_not_import_mujoco():
     code = "import sys, simn_sim.mapping; assert 'mujoco' not in sys.modules, 'mujoco imported'"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def _two_frames_sharing_a_decoder():
+    """Frame A (first two views) closed, frame B (third view) open, sharing one decoder."""
+    a = ImplicitMap(_cfg())
+    fr = _frames(3)
+    for p, T in fr[:2]:
+        a.integrate_frame(p, T, train=True)
+    a.close()
+    b = a.new_map(share_decoder=True)
+    b.integrate_frame(fr[2][0], fr[2][1], train=True)
+    return a, b
+
+
+def test_closing_a_frame_shares_ewc_and_replay_with_the_next():
+    a, b = _two_frames_sharing_a_decoder()
+    # one decoder, one EWC state (Fisher of A, anchored at the close), one pool of closed frames
+    assert b.decoder is a.decoder and b.ewc is a.ewc and b.frame_replay is a.frame_replay
+    assert a.ewc.active and a.ewc.count == 1
+    assert a.frame_replay.n_frames == 1 and len(a.frame_replay) > 0
+    # B's first training replayed A's samples (decoded with A's neural points), and its own
+    # replay pool holds only B's samples
+    assert b.last_train.n_replayed == len(a.frame_replay)
+    assert len(b.replay) == b.last_train.n_samples
+    b.close()  # both frames now share the pool evenly
+    assert a.frame_replay.n_frames == 2 and a.ewc.count == 2
+    n0, n1 = (e[1].shape[0] for e in a.frame_replay.entries)
+    assert n0 <= a.cfg.training.frame_replay_capacity // 2 >= n1
+
+
+def test_copied_decoder_starts_with_empty_ewc_and_replay():
+    a, _ = _two_frames_sharing_a_decoder()
+    c = a.new_map(share_decoder=False)
+    assert c.decoder is not a.decoder and not c.ewc.active and len(c.frame_replay) == 0
+
+
+def test_frames_sharing_a_decoder_save_it_once_and_load_shared(tmp_path):
+    from simn_sim.mapping.persistence import save_frame_maps
+
+    a, b = _two_frames_sharing_a_decoder()
+    path = save_frame_maps({0: a, 1: b}, tmp_path / "maps.pt")
+    state = torch.load(path, weights_only=True)
+    assert len(state["shared"]) == 1 and "decoder" not in state["frames"][0]
+    maps = ImplicitMap.load_frames(path)
+    a2, b2 = maps[0], maps[1]
+    assert a2.decoder is b2.decoder and a2.ewc is b2.ewc and a2.frame_replay is b2.frame_replay
+    assert a2.ewc.count == 1 and len(a2.frame_replay) == len(a.frame_replay)
+    for m, m2 in ((a, a2), (b, b2)):
+        x = m.feature_points().positions[:300] + np.float32(0.02)
+        np.testing.assert_array_equal(m.sdf(x), m2.sdf(x))
+        assert len(m2.replay) == len(m.replay) and m2.frame_count == m.frame_count
+    # training a loaded frame goes on with the shared EWC and replay of the closed frame
+    p, T = _frames(3)[2]
+    r = b2.integrate_frame(p, T, train=True)
+    assert r.train.n_replayed >= len(a2.frame_replay)
+    # a single map's file keeps the closed frames' replay too
+    a3 = ImplicitMap.load(a.save(tmp_path / "a.map"))
+    assert len(a3.frame_replay) == len(a.frame_replay) and a3.ewc.count == 1
+    with pytest.raises(MapFileError, match="set of local-frame maps"):
+        ImplicitMap.load_frames(tmp_path / "a.map")

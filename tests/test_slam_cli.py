@@ -75,6 +75,31 @@ def test_slam_cli_max_frames_without_groundtruth(seq, tmp_path):
     assert m["frames"] == 3 and "ate_rmse_m" not in m
 
 
+def test_slam_cli_saves_the_learned_maps_with_one_shared_decoder(seq, tmp_path):
+    import torch
+
+    from simn_sim.mapping import ImplicitMap
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(
+        "map_kind: implicit\nopen_train_iters: 5\ntrain_iters: 5\ntrigger:\n  max_travel_m: 0.05\n"
+    )
+    out = tmp_path / "out"
+    rc = slam_main(
+        ["--tum", str(seq), "--out", str(out), "--max-frames", "6", "--config", str(cfg),
+         "--no-progress", "--save-maps"]
+    )  # fmt: skip
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["local_frames"] >= 2
+    state = torch.load(out / "maps.pt", weights_only=True)
+    assert len(state["shared"]) == 1  # share_decoder (the default): the decoder once
+    maps = ImplicitMap.load_frames(out / "maps.pt")
+    assert len(maps) == m["local_frames"]
+    assert len({id(mp.decoder) for mp in maps.values()}) == 1
+    assert maps[0].ewc.count == len(maps) - 1  # every closed frame consolidated
+
+
 def test_slam_cli_bad_input(tmp_path, capsys):
     assert slam_main(["--tum", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
     assert "does not exist" in capsys.readouterr().err

@@ -213,6 +213,12 @@ class TrainingConfig(Config):
     replay_capacity: int = 200_000
     replay_ratio: float = 0.5  # share of replayed (old) samples in a batch once the pool has any
     use_replay: bool = True
+    # Replay across local frames that share the decoder (mapping/continual.py): at most this
+    # many samples of the closed frames, split evenly over them, stored with their decoder
+    # inputs; ``frame_replay_share`` of the replayed part of a batch comes from them when the
+    # frame has replay of its own as well (all of it when not). 0: no replay across frames.
+    frame_replay_capacity: int = 50_000
+    frame_replay_share: float = 0.5
     use_ewc: bool = True
     fisher_samples: int = 2048
     # Divide each consolidated Fisher by its mean, so ewc_weight is a stiffness relative to
@@ -245,6 +251,8 @@ class TrainingConfig(Config):
         require(self.loss_window >= 1, n, "loss_window", "must be >= 1")
         require(self.replay_capacity >= 0, n, "replay_capacity", "must be >= 0")
         require(0 <= self.replay_ratio < 1, n, "replay_ratio", "must be in [0, 1)")
+        require(self.frame_replay_capacity >= 0, n, "frame_replay_capacity", "must be >= 0")
+        require(0 <= self.frame_replay_share <= 1, n, "frame_replay_share", "must be in [0, 1]")
         require(self.fisher_samples >= 1, n, "fisher_samples", "must be >= 1")
         require(self.max_pending >= 1, n, "max_pending", "must be >= 1")
 

@@ -5,7 +5,15 @@ map's own anchor coordinates) and a :class:`~simn_sim.mapping.decoder.Decoder` (
 shared with, or copied from, another map). Per frame it inserts neural points and draws ray
 samples; every ``train_every``-th frame it runs the adaptive training loop on the new samples
 mixed with a bounded replay pool, with the loss
-``lambda_b BCE + lambda_e Eikonal + lambda_EWC EWC``. Queries return the SDF, its gradient in
+``lambda_b BCE + lambda_e Eikonal + lambda_EWC EWC``.
+
+Continual learning across local frames (:meth:`new_map` with ``share_decoder``): the maps
+share the decoder, its :class:`~simn_sim.mapping.losses.EWC` state and a
+:class:`~simn_sim.mapping.continual.FrameReplay`; each keeps its own neural points and its own
+replay pool. :meth:`close` (a local frame closes) takes the diagonal Fisher on the frame's
+samples, adds it to the shared one (summed over closed frames, anchored at the weights of the
+latest close) and hands a share of the frame's samples, with their decoder inputs, to the
+later frames' replay. Queries return the SDF, its gradient in
 map coordinates and a validity mask (a point with no neural point within the search radius has
 no SDF: NaN and ``valid = False``).
 """
@@ -20,6 +28,7 @@ import torch
 
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.mapping.config import MapperConfig
+from simn_sim.mapping.continual import FrameReplay
 from simn_sim.mapping.decoder import Decoder
 from simn_sim.mapping.decoding import decoder_inputs
 from simn_sim.mapping.losses import EWC, bce_sdf_loss, diagonal_fisher, eikonal_loss
@@ -30,7 +39,15 @@ from simn_sim.mapping.perception import (
     rgbd_to_points,
     voxel_downsample,
 )
-from simn_sim.mapping.persistence import MAP_FORMAT, MAP_VERSION, MapFileError, load_map, map_state
+from simn_sim.mapping.persistence import (
+    MAP_FORMAT,
+    MAP_VERSION,
+    MapFileError,
+    load_frame_maps,
+    load_map,
+    map_state,
+    save_frame_maps,
+)
 from simn_sim.mapping.replay import ReplayPool
 from simn_sim.mapping.results import (
     FrameResult,
@@ -57,6 +74,7 @@ __all__ = [
     "check_pose",
     "estimate_normals",
     "flush_denormals",
+    "save_frame_maps",
 ]
 
 
@@ -70,6 +88,8 @@ class ImplicitMap:
         a new one is created when None.
     generator: torch RNG for feature init, ray sampling, batches and replay; by default one
         seeded with ``cfg.seed``.
+    ewc, frame_replay: share the EWC state and the replay of closed frames of the maps that
+        share ``decoder`` (:meth:`new_map`); new, empty ones when None.
     """
 
     def __init__(
@@ -77,6 +97,8 @@ class ImplicitMap:
         cfg: MapperConfig | None = None,
         decoder: Decoder | None = None,
         generator: torch.Generator | None = None,
+        ewc: EWC | None = None,
+        frame_replay: FrameReplay | None = None,
     ) -> None:
         self.cfg = cfg or MapperConfig()
         self.device = torch.device(self.cfg.device)
@@ -95,9 +117,12 @@ class ImplicitMap:
                 f"decoder takes features of dim {decoder.feature_dim}, map has {self.cfg.points.feature_dim}"
             )
         self.decoder = decoder
-        self.ewc = EWC()
+        self.ewc = EWC() if ewc is None else ewc
         tc = self.cfg.training
-        self.replay = ReplayPool(tc.replay_capacity, self.device)
+        self.replay = ReplayPool(tc.replay_capacity, self.device)  # this frame's samples
+        if frame_replay is None:
+            frame_replay = FrameReplay(tc.frame_replay_capacity, self.device)
+        self.frame_replay = frame_replay  # closed frames' samples (shared with the decoder)
         self._recent = ReplayPool(tc.fisher_samples, self.device)  # since the last consolidation
         self._pending: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         self._n_pending = 0
@@ -248,6 +273,7 @@ class ImplicitMap:
             self.last_train = res
             return res
         n_new = Xn.shape[0]
+        n_prev = len(self.frame_replay) if tc.use_replay else 0  # closed frames' samples
         if tc.use_replay and len(self.replay) > 0:
             m = int(round(n_new * tc.replay_ratio / (1.0 - tc.replay_ratio)))
             Xo, So, Ko = self.replay.sample(max(m, 1), self.generator)
@@ -293,14 +319,21 @@ class ImplicitMap:
             i = torch.randint(ids.numel(), (k,), generator=self.generator, device=self.device)
             return ids[i]
 
+        # batch: new samples, this frame's replay and the closed frames' replay (frame_replay)
+        nb_rep = int(round(B * tc.replay_ratio)) if (old_ids.numel() or n_prev) else 0
+        nb_prev = 0
+        if n_prev:
+            nb_prev = nb_rep if not old_ids.numel() else int(round(nb_rep * tc.frame_replay_share))
+            nb_prev = min(nb_prev, B - 1)
+        Bc = B - nb_prev  # samples of this frame per batch
         for it in range(1, cap + 1):  # noqa: B007
             if old_ids.numel() and new_ids.numel():
-                nb_old = int(round(B * tc.replay_ratio))
-                bi = torch.cat([draw(new_ids, B - nb_old), draw(old_ids, nb_old)])
+                nb_old = nb_rep - nb_prev
+                bi = torch.cat([draw(new_ids, Bc - nb_old), draw(old_ids, nb_old)])
             else:
-                bi = torch.randint(X.shape[0], (B,), generator=self.generator, device=self.device)
+                bi = torch.randint(X.shape[0], (Bc,), generator=self.generator, device=self.device)
             x = X[bi]
-            ne = int(round(B * tc.eikonal_fraction)) if tc.eikonal_weight > 0 else 0
+            ne = min(int(round(B * tc.eikonal_fraction)), Bc) if tc.eikonal_weight > 0 else 0
             if ne:
                 x = x.clone()
                 xe = x[:ne].requires_grad_(True)
@@ -309,11 +342,20 @@ class ImplicitMap:
                 x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
             )
             pred = self.decoder(*inp)
-            loss = tc.bce_weight * bce_sdf_loss(pred, S[bi], tc.sigma)
+            label = S[bi]
+            prior = inp[4] if shrink else None
+            p_ne = pred[:ne]
+            if nb_prev:  # closed frames' samples: their frozen decoder inputs
+                inp_p, lab_p = self.frame_replay.draw(nb_prev, self.generator)
+                pred = torch.cat([pred, self.decoder(*inp_p)])
+                label = torch.cat([label, lab_p])
+                if shrink:
+                    prior = torch.cat([prior, inp_p[4]])
+            loss = tc.bce_weight * bce_sdf_loss(pred, label, tc.sigma)
             if shrink:  # Gaussian prior on the learned residual: zero unless the labels agree
-                loss = loss + tc.residual_weight * ((pred - inp[4]) / tc.sigma).pow(2).mean()
+                loss = loss + tc.residual_weight * ((pred - prior) / tc.sigma).pow(2).mean()
             if ne:
-                (g,) = torch.autograd.grad(pred[:ne].sum(), xe, create_graph=True)
+                (g,) = torch.autograd.grad(p_ne.sum(), xe, create_graph=True)
                 loss = loss + tc.eikonal_weight * eikonal_loss(g)
             if use_ewc:
                 loss = loss + tc.ewc_weight * self.ewc.penalty(self.decoder)
@@ -341,7 +383,7 @@ class ImplicitMap:
             converged=converged,
             final_loss=sum(losses[-w:]) / w,
             n_samples=int(X.shape[0]),
-            n_replayed=int(old_ids.numel()),
+            n_replayed=int(old_ids.numel()) + (len(self.frame_replay) if nb_prev else 0),
             seconds=time.perf_counter() - t0,
         )
         self.last_train = res
@@ -369,6 +411,28 @@ class ImplicitMap:
             fisher = {k: v / mean for k, v in fisher.items()}
         self.ewc.consolidate(self.decoder, fisher)
         self._recent = ReplayPool(self.cfg.training.fisher_samples, self.device)
+
+    def close(self) -> None:
+        """The local frame is closed: :meth:`consolidate` (EWC), then hand a share of this
+        frame's replay samples, with their decoder inputs from this frame's neural points, to
+        :attr:`frame_replay`, which later frames sharing the decoder replay (with replay on)."""
+        self.consolidate()
+        tc = self.cfg.training
+        fr = self.frame_replay
+        if not (tc.use_replay and self.decoder.cfg.residual and len(self.replay)):
+            return
+        q = fr.share(1)
+        if q == 0:
+            return
+        X, S, _ = self.replay.sample(q, self.generator)
+        idx, _ = self.points.knn(X)
+        ok = idx[:, 0] >= 0
+        X, S, idx = X[ok], S[ok], idx[ok]
+        if X.shape[0] == 0:
+            return
+        with torch.no_grad():
+            inputs = self._decoder_inputs(X, *self._gather(idx))
+        fr.add_frame(inputs, S, self.generator)
 
     # ------------------------------------------------------------------ decoding
     def _gather(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -476,17 +540,23 @@ class ImplicitMap:
 
     # ------------------------------------------------------------------ sibling maps
     def new_map(self, share_decoder: bool = True) -> ImplicitMap:
-        """An empty map for a new local frame with the same config, sharing this decoder or
-        starting from a copy of it."""
-        dec = self.decoder if share_decoder else self.decoder.copy()
-        return ImplicitMap(self.cfg, dec, self.generator)
+        """An empty map for a new local frame with the same config and generator.
+
+        ``share_decoder``: the new map shares this map's decoder, EWC state and replay of
+        closed frames (continual learning of one ``F_theta`` across frames; call :meth:`close`
+        on this map when its frame closes). Otherwise it starts from a copy of the decoder with
+        an empty EWC and replay (the frames no longer interact: nothing to forget)."""
+        if share_decoder:
+            return ImplicitMap(self.cfg, self.decoder, self.generator, self.ewc, self.frame_replay)
+        return ImplicitMap(self.cfg, self.decoder.copy(), self.generator)
 
     # ------------------------------------------------------------------ persistence
     def state_dict(self) -> dict:
         return map_state(self)
 
     def save(self, path: str | Path) -> Path:
-        """Write the map (config, decoder, points, EWC and replay state) to ``path``."""
+        """Write the map (config, decoder, points, EWC and replay state) to ``path``. Maps of
+        local frames that share a decoder: :func:`save_frame_maps` writes it once."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         torch.save(self.state_dict(), path)
@@ -497,3 +567,9 @@ class ImplicitMap:
         """Read a map written by :meth:`save`. Raises :class:`MapFileError` when the file is
         missing, corrupt, or not a simn-sim implicit map."""
         return load_map(cls, path, device)
+
+    @classmethod
+    def load_frames(cls, path: str | Path, device: str | None = None) -> dict[int, ImplicitMap]:
+        """Read local-frame maps written by :func:`save_frame_maps` (``{frame id: map}``); maps
+        that shared a decoder share it again (see :func:`load_frame_maps`)."""
+        return load_frame_maps(cls, path, device)

@@ -10,9 +10,16 @@ OMPL is optional (``pip install simn-sim[bench]``, ``ompl>=2.0``); constructing 
 it raises ImportError with that hint. OMPL's nanobind bindings may print reference-leak warnings
 at interpreter exit; they are harmless.
 
-Time to first solution: OMPL's intermediate-solution callback is not exposed by the bindings, so
-the planner is run in slices of ``slice_ms`` (RRTstar keeps its tree between ``solve`` calls) and
+Time to first solution. With ``stop_at_first_solution`` the objective's cost threshold is
+infinite, so RRTstar ends its one ``solve`` call at the iteration that finds the first exact
+solution: the time is exact (no slicing). Otherwise OMPL's intermediate-solution callback is not
+usable from Python (the bindings do not convert a Python callable to its ``std::function``), so
+the planner runs in slices of ``slice_ms`` (RRTstar keeps its tree between ``solve`` calls) and
 the first slice that ends with an exact solution gives the time (resolution: one slice).
+
+``simplify=True`` runs OMPL's own ``PathSimplifier.simplifyMax`` (vertex reduction,
+shortcutting, B-spline smoothing, all through our motion validator) on the solution; the raw
+tree path stays in ``raw_path`` and the simplifier's wall time in ``simplify_time_s``.
 """
 
 from __future__ import annotations
@@ -55,7 +62,8 @@ class OmplRRTStarConfig(Config):
     time_budget_ms: float = 200.0
     stop_at_first_solution: bool = False
     slice_ms: float = 1.0
-    """Solve slice used to time the first solution."""
+    """Solve slice used to time the first solution of a budget run (a ``stop_at_first_solution``
+    run solves in one call)."""
     k_nearest: bool = True
     """OMPL's default k-nearest rewiring; False = its radius rule (capped at ``range``)."""
     rewire_factor: float = 1.1
@@ -103,6 +111,7 @@ class OmplRRTStar:
         self.stats = PlanStats()
         self.path: np.ndarray | None = None
         self.raw_path: np.ndarray | None = None
+        self.simplify_time_s: float | None = None
         self.tree_xy = np.zeros((0, 2))
 
     def _space_information(self):
@@ -117,13 +126,16 @@ class OmplRRTStar:
         space.setBounds(b)
         si = ob.SpaceInformation(space)
 
+        # the scalar calls our planners use (same answers as is_free / segment_free)
+        is_free_point, segment_free_xy = checker.is_free_point, checker.segment_free_xy
+
         class _Valid(ob.StateValidityChecker):
             def isValid(self, s) -> bool:  # noqa: N802 - OMPL API
-                return bool(checker.is_free(np.array([[s[0], s[1]]]))[0])
+                return is_free_point(s[0], s[1])
 
         class _Motion(ob.MotionValidator):
             def checkMotion(self, s1, s2, *args) -> bool:  # noqa: N802 - OMPL API
-                return checker.segment_free(np.array([s1[0], s1[1]]), np.array([s2[0], s2[1]]))
+                return segment_free_xy(s1[0], s1[1], s2[0], s2[1])
 
         # keep Python-side references alive for the lifetime of si
         self._validity, self._motion = _Valid(si), _Motion(si)
@@ -145,12 +157,21 @@ class OmplRRTStar:
             ou.RNG.setSeed(int(self.seed))
             _SEEDED = True
         si = self._space_information()
+        st = self.stats = PlanStats()
+        self.path = self.raw_path = None
+        self.simplify_time_s = None
+        # timed from the problem set-up on, as RRTStar times from its begin()
+        t0 = time.perf_counter()
         s, g = si.allocState(), si.allocState()
         s[0], s[1] = float(start[0]), float(start[1])
         g[0], g[1] = float(goal[0]), float(goal[1])
         pdef = ob.ProblemDefinition(si)
         pdef.setStartAndGoalStates(s, g)
-        pdef.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
+        obj = ob.PathLengthOptimizationObjective(si)
+        if cfg.stop_at_first_solution:
+            # any exact solution satisfies the objective: RRTstar returns at the first one
+            obj.setCostThreshold(ob.Cost(math.inf))
+        pdef.setOptimizationObjective(obj)
         pl = og.RRTstar(si)
         pl.setRange(cfg.range)
         pl.setGoalBias(cfg.goal_bias)
@@ -158,11 +179,14 @@ class OmplRRTStar:
         pl.setRewireFactor(cfg.rewire_factor)
         pl.setProblemDefinition(pdef)
         pl.setup()
-        st = self.stats = PlanStats()
-        self.path = self.raw_path = None
-        t0 = time.perf_counter()
         budget = cfg.time_budget_ms * 1e-3
-        while True:
+        if cfg.stop_at_first_solution:
+            pl.solve(budget)
+            if pdef.hasExactSolution():
+                st.first_solution_time_s = time.perf_counter() - t0
+                st.first_solution_iteration = int(pl.numIterations())
+                st.first_solution_cost = float(pdef.getSolutionPath().length())
+        while not cfg.stop_at_first_solution:
             left = budget - (time.perf_counter() - t0)
             if left <= 0:
                 break
@@ -171,8 +195,6 @@ class OmplRRTStar:
                 st.first_solution_time_s = time.perf_counter() - t0
                 st.first_solution_iteration = int(pl.numIterations())
                 st.first_solution_cost = float(pdef.getSolutionPath().length())
-                if cfg.stop_at_first_solution:
-                    break
         st.iterations = int(pl.numIterations())
         if pdef.hasExactSolution():
             p = pdef.getSolutionPath()
@@ -180,7 +202,9 @@ class OmplRRTStar:
             self.raw_path = xy
             st.cost = path_length(xy)
             if cfg.simplify:
-                og.PathSimplifier(si).simplifyMax(p)
+                t1 = time.perf_counter()
+                og.PathSimplifier(si, pdef.getGoal(), obj).simplifyMax(p)
+                self.simplify_time_s = time.perf_counter() - t1
                 xy = np.array(
                     [[p.getState(i)[0], p.getState(i)[1]] for i in range(p.getStateCount())]
                 )

@@ -3,7 +3,9 @@
 ``slam_main``: run :class:`~simn_sim.slam.pipeline.SimnSlam` on a TUM RGB-D folder (simulated or
 real) and write ``OUT/trajectory.txt`` (TUM format, poses re-expressed through the final
 anchors), ``OUT/trajectory_online.txt`` (the estimates as produced frame by frame),
-``OUT/metrics.json`` and ``OUT/config.json``; with ``--rerun`` also ``OUT/slam.rrd``.
+``OUT/metrics.json`` and ``OUT/config.json``; with ``--rerun`` also ``OUT/slam.rrd``; with
+``--save-maps`` also ``OUT/maps.pt``, the local frames' learned maps (a decoder shared by the
+frames written once; read with ``ImplicitMap.load_frames``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ def run_slam(
     rerun: bool = False,
     progress: bool = True,
     use_odometry: bool = True,
+    save_maps: bool = False,
 ) -> dict[str, Any]:
     """Run the pipeline on a TUM folder and write the outputs; returns the metrics dict.
 
@@ -116,6 +119,8 @@ def run_slam(
     metrics["revisit_log"] = slam.loop_log
     (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2))
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+    if save_maps and slam.frames.implicit_maps():
+        slam.frames.save_maps(out / "maps.pt")
     if rec is not None:
         rec.flush()
         rec.disconnect()
@@ -168,7 +173,7 @@ def _log_rerun(rec, k: int, fr, res, slam, intr) -> None:
 
 def slam_main(argv: list[str] | None = None) -> int:
     """``simn-sim slam --tum DIR --out OUT [--camera fr1|fr2|fr3|PATH] [--rerun]
-    [--max-frames N] [--config YAML]``. Returns the exit status (0 ok, 2 bad input)."""
+    [--max-frames N] [--config YAML] [--save-maps]``. Returns the exit status (0 ok, 2 bad input)."""
     from simn_sim.io.tum import TumFormatError
 
     ap = argparse.ArgumentParser(
@@ -184,6 +189,11 @@ def slam_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", type=Path, default=None, help="SlamConfig YAML")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument(
+        "--save-maps",
+        action="store_true",
+        help="also write OUT/maps.pt (the learned local-frame maps, a shared decoder once)",
+    )
+    ap.add_argument(
         "--no-odometry", action="store_true", help="ignore odometry.txt (constant-velocity prior)"
     )
     a = ap.parse_args(argv)
@@ -195,7 +205,7 @@ def slam_main(argv: list[str] | None = None) -> int:
         cfg = load_slam_config(a.config)
         m = run_slam(
             a.tum, a.out, a.camera, cfg, a.max_frames, a.rerun, not a.no_progress,
-            not a.no_odometry,
+            not a.no_odometry, a.save_maps,
         )  # fmt: skip
     except (TumFormatError, ConfigError) as e:
         print(f"simn-sim slam: error: {e}", file=sys.stderr)
@@ -209,7 +219,8 @@ def slam_main(argv: list[str] | None = None) -> int:
     if ate is not None:
         msg += f", ATE {100 * ate:.2f} cm"
     print(msg)
-    print(f"wrote {a.out}/trajectory.txt, metrics.json, config.json")
+    extra = ", maps.pt" if (a.out / "maps.pt").is_file() and a.save_maps else ""
+    print(f"wrote {a.out}/trajectory.txt, metrics.json, config.json{extra}")
     return 0
 
 

@@ -123,7 +123,11 @@ class SlamConfig(Config):
     train_every: int = 5
     open_train_iters: int = 150
     train_iters: int = 40
-    share_decoder: bool = False  # False: a new frame's decoder starts as a copy (no forgetting)
+    # learned map: one decoder F_theta for all local frames, learned continually (EWC Fisher
+    # summed over closed frames, replay of closed frames' samples; docs/mapping.md,
+    # "Forgetting in the pipeline"); False: each new frame's decoder starts as a copy of the
+    # previous frame's and is never trained again once its frame closes (nothing to forget)
+    share_decoder: bool = True
     # per-frame map: "implicit" = the learned ImplicitMap (the paper); "points" = no learning
     # (a surface voxel store with normals; the cheap path).
     map_kind: Literal["implicit", "points"] = "implicit"

@@ -139,11 +139,9 @@ class LocalFrames:
         if self._base_map is None:
             self._base_map = ImplicitMap(self.cfg.mapper)
             return self._base_map
-        prev = self.current.frame.map
-        m = prev.new_map(share_decoder=self.cfg.share_decoder)
-        if self.cfg.share_decoder and prev.ewc.active:
-            m.ewc.load_state_dict(prev.ewc.state_dict())  # keep protecting the shared decoder
-        return m
+        # share_decoder: one F_theta (with its EWC state and the closed frames' replay) for all
+        # frames; otherwise each frame starts from a copy of the previous frame's decoder
+        return self.current.frame.map.new_map(share_decoder=self.cfg.share_decoder)
 
     def open(self, T_world_cam: np.ndarray, t: float) -> int:
         """Open a frame anchored at ``T_world_cam``, with an odometry arc from the current one."""
@@ -172,15 +170,30 @@ class LocalFrames:
         return fid
 
     def close(self, fid: int) -> None:
-        """Close frame ``fid``: a learned map trains on what is pending and is consolidated
-        (EWC snapshot); its topological node is refreshed."""
+        """Close frame ``fid``: a learned map trains on what is pending and is closed (EWC
+        Fisher added to the shared decoder's, a share of its samples joins the replay of later
+        frames: :meth:`ImplicitMap.close`); its topological node is refreshed."""
         st = self.states[fid]
         if isinstance(st.frame.map, ImplicitMap):
             if st.n_trained and st.frame.map.n_pending:
                 st.frame.map.train(self.cfg.train_iters)
-            st.frame.map.consolidate()
+            st.frame.map.close()
         if len(unpack_feature_points(st.frame.map.feature_points())[0]):
             self.topo.refresh(fid)
+
+    def implicit_maps(self) -> dict[int, ImplicitMap]:
+        """``{frame id: learned map}`` of the frames with a learned map."""
+        return {
+            f: s.frame.map for f, s in self.states.items() if isinstance(s.frame.map, ImplicitMap)
+        }
+
+    def save_maps(self, path) -> None:
+        """Write the frames' learned maps to one file, a shared decoder once
+        (:func:`~simn_sim.mapping.persistence.save_frame_maps`; read with
+        :meth:`ImplicitMap.load_frames`)."""
+        from simn_sim.mapping.persistence import save_frame_maps
+
+        return save_frame_maps(self.implicit_maps(), path)
 
     # ---- stores ------------------------------------------------------------------------------
     def store(self, st: FrameState, frame: Frame, T_anchor_cam: np.ndarray) -> None:
