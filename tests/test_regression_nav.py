@@ -74,22 +74,31 @@ def regressions(base: list[dict[str, Any]], new: list[dict[str, Any]], gate: Gat
     return out
 
 
+#: (set, agent) pairs gated; regression_real_v1 is realistic sensing at 320x240 (slow)
+CASES = [("regression_v1", a) for a in sorted(AGENTS)] + [("regression_real_v1", "simn")]
+
+
 @pytest.mark.parametrize(
-    "agent",
-    [pytest.param(a, marks=pytest.mark.slow) if a in SLOW_AGENTS else a for a in sorted(AGENTS)],
+    "name, agent",
+    [
+        pytest.param(n, a, marks=pytest.mark.slow)
+        if a in SLOW_AGENTS or n != "regression_v1"
+        else (n, a)
+        for n, a in CASES
+    ],
 )
-def test_regression_set_matches_baseline(agent: str, tmp_path: Path) -> None:
-    base_file = BASELINES / f"regression_v1_{agent}.jsonl"
+def test_regression_set_matches_baseline(name: str, agent: str, tmp_path: Path) -> None:
+    base_file = BASELINES / f"{name}_{agent}.jsonl"
     assert base_file.is_file(), (
         f"no baseline {base_file}; create it with scripts/refresh_regression_baseline.py "
-        f"--agent {agent}"
+        f"--agent {agent} --set {name}"
     )
     base = load_records(base_file)
-    new = run_regression(agent, tmp_path / "batch", workers=0)
+    new = run_regression(agent, tmp_path / "batch", workers=0, name=name)
     assert len(new) == len(base) >= 4
     problems = regressions(base, new, AGENTS[agent])
     assert not problems, (
-        f"{agent} regressed on regression_v1 (if intended, refresh the baseline, see "
+        f"{agent} regressed on {name} (if intended, refresh the baseline, see "
         "docs/experiments.md):\n  " + "\n  ".join(problems)
     )
 

@@ -44,9 +44,11 @@ from simn_sim.planning import (
     goal_vector_rrt_star,
     uniform_rrt_star,
 )
+from simn_sim.planning.collision import CollisionChecker
 from simn_sim.planning.costmap import CostMap, CostMapConfig
 from simn_sim.planning.gridpath import grid_shortest_path
 from simn_sim.planning.smoothing import push_from_obstacles, shortcut_path
+from simn_sim.semantics import OBSTACLE
 from simn_sim.slam.config import SlamConfig
 from simn_sim.world import ObstacleConfig, WorldModel, make_world
 
@@ -124,6 +126,10 @@ class SimnAgentConfig(Config):
     stall_steps: int = 150
     progress_eps: float = 0.5
     force_steps: int = 100
+    # when the goal is unreachable on the map under the safety margin (a doorway closed by
+    # depth noise on its jambs), plan once more with the robot radius shrunk by this (m) and no
+    # margin, and follow that route for force_steps steps under the same model; 0: off
+    squeeze: float = 0.05
     seed: int = 0
 
     @classmethod
@@ -155,6 +161,12 @@ class SimnAgentConfig(Config):
         require(self.stall_steps >= 1, n, "stall_steps", "must be >= 1")
         require(self.progress_eps > 0, n, "progress_eps", "must be > 0")
         require(self.force_steps >= 0, n, "force_steps", "must be >= 0")
+        require(
+            0 <= self.squeeze < self.obstacles.collision.robot_radius,
+            n,
+            "squeeze",
+            "must be in [0, robot radius)",
+        )
 
 
 @dataclasses.dataclass
@@ -230,6 +242,9 @@ class SimnAgent:
         self._force_until = -1  # follow the cost map's route until this step
         self.lost_progress = 0
         self.field_routes = 0  # plans where the cost map's route was taken
+        self.squeezes = 0  # routes found only with the squeezed model
+        self._squeeze_until = -1
+        self._squeezed = None  # the squeezed collision model while squeezing
         self._step = self.world.update(0.0, obs, self.T_odom_prev)
 
     @staticmethod
@@ -368,9 +383,15 @@ class SimnAgent:
     def _judge(self, rrt_path: np.ndarray | None, xy: np.ndarray, scheduled: bool) -> None:
         """Choose among the fresh RRT* plan, the cost map's route and the committed path, all
         judged on the same cost-to-go map (see :mod:`simn_sim.planning.costmap`)."""
+        if self._squeezing():
+            self._squeeze_route(xy)
+            return
         cm = self._costmap(xy)
         field, c_field = self._field_route(cm, xy)
         c_rrt = cm.path_cost(rrt_path) if rrt_path is not None else math.inf
+        if not math.isfinite(c_field) and not math.isfinite(c_rrt) and self.cfg.squeeze > 0:
+            if self._squeeze_route(xy, start=True):
+                return
         forced = self.steps < self._force_until
         if forced or c_rrt > self.cfg.homotopy_slack * c_field:
             new, c_new, kind = field, c_field, "field"
@@ -385,6 +406,44 @@ class SimnAgent:
             return
         self.field_routes += int(kind == "field")
         self._take(new)
+
+    # ---- squeezing through a doorway the map has narrowed -----------------------------------
+    def _squeezing(self) -> bool:
+        if self._squeezed is not None and self.steps >= self._squeeze_until:
+            self._squeezed = None  # back to the normal models
+            self.follower.checker = self.obstacles.safety
+        return self._squeezed is not None
+
+    def _squeeze_route(self, xy: np.ndarray, start: bool = False) -> bool:
+        """Plan on the squeezed model (radius - ``squeeze``, no margin; the safety model's
+        margin soft). ``start``: enter squeezing when a route exists. True when a route was
+        taken."""
+        if start:
+            c = self.obstacles.safety.cfg
+            sq = CollisionChecker(
+                c.replace(robot_radius=c.robot_radius - self.cfg.squeeze, margin=0.0)
+            )
+            pts = self.world.frames.obstacle_points_world()
+            if self.obstacles.bump_points:
+                pts = np.concatenate([pts, *self.obstacles.bump_points])
+            if len(pts):
+                sq.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+        else:
+            sq = self._squeezed
+        known = self.world.frames.floor_points_world()[:, :2]
+        cm = CostMap(self.cfg.costmap, sq, self.obstacles.safety, self.goal, xy, known)
+        raw = cm.path(xy)
+        if raw is None or not math.isfinite(cm.path_cost(raw)):
+            if not start:
+                self._take(None)
+            return False
+        if start:
+            self.squeezes += 1
+            self._squeezed = sq
+            self._squeeze_until = self.steps + self.cfg.force_steps
+            self.follower.checker = sq
+        self._take(raw)
+        return True
 
     def _remaining_path(self, xy: np.ndarray) -> np.ndarray:
         p = self.path
@@ -467,11 +526,17 @@ class SimnAgent:
             self.path = None
             self._job = None
         checker, w_max = self.obstacles.planning, self.follower_cfg.w_max
-        if float(checker.clearance(xy[None])[0]) < self.cfg.obstacles.collision.robot_radius + 0.01:
+        touch = (
+            self.cfg.obstacles.collision.robot_radius
+            + 0.01
+            - (self.cfg.squeeze + 0.02 if self._squeezed is not None else 0.0)
+        )
+        if float(checker.clearance(xy[None])[0]) < touch:
             self._state = "escaping"  # (nearly) touching a mapped obstacle
             self.path = None
             return escape(pose, checker, w_max)
-        if not self.obstacles.safety.is_free(xy[None])[0]:
+        active = self._squeezed if self._squeezing() else self.obstacles.safety
+        if not active.is_free(xy[None])[0]:
             # inside the safety margin (the map grew around the robot): back out to the nearest
             # point free under the planning margin before planning again
             self._state = "recovering"
@@ -521,6 +586,7 @@ class SimnAgent:
             "bumps": self.bump.bumps if self.world is not None else 0,
             "lost_progress": getattr(self, "lost_progress", 0),
             "field_routes": getattr(self, "field_routes", 0),
+            "squeezes": getattr(self, "squeezes", 0),
         }
         if self.world is not None:
             out.update(self.world.counters())

@@ -346,6 +346,12 @@ REGRESSION_SET = "regression_v1"
 REGRESSION_ENV_ID = "SimnOffice-v0"
 # ideal sensing: the stored baselines (tests/baselines/regression_v1_*.jsonl) were recorded with it
 REGRESSION_ENV_CONFIG: dict[str, Any] = {"width": 160, "height": 120, "sensing": "ideal"}
+#: env config per regression set (others: REGRESSION_ENV_CONFIG). regression_real_v1: four
+#: office_nav_v2 episodes at 320x240 under the env's default realistic sensing
+REGRESSION_SETS: dict[str, dict[str, Any]] = {
+    "regression_v1": REGRESSION_ENV_CONFIG,
+    "regression_real_v1": {"width": 320, "height": 240},
+}
 
 
 def regression_episode_file(name: str = REGRESSION_SET) -> Path:
@@ -372,7 +378,7 @@ def run_regression(
         env_id=REGRESSION_ENV_ID,
         episode_file=f,
         workers=workers,
-        env_config=dict(REGRESSION_ENV_CONFIG),
+        env_config=dict(REGRESSION_SETS.get(name, REGRESSION_ENV_CONFIG)),
         agent_config=dict(agent_config or {}),
         progress=False,
         plots=False,
