@@ -31,12 +31,33 @@ import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
+from simn_sim.slam.config import SlamConfig  # noqa: E402
+
+
+def _learned_exact() -> dict:
+    """Tracking on the learned map as before its fast path: the network at every LM
+    iteration, the agent's training schedule in the step (scripts/bench_learned_tracking.py)."""
+    d = SlamConfig.for_learned_agent().to_dict()
+    d.update(
+        implicit_cache_voxel=0.0,
+        train_async=False,
+        open_train_iters=60,
+        train_iters=15,
+        train_every=5,
+    )
+    d["mapper"]["training"]["max_pending"] = 20_000
+    return d
+
 
 CONFIGS = {
     "simn (slam, default)": {},
     "simn, odometry pose (ablation)": {"pose_source": "odometry"},
     # the paper's learned neural implicit map per local frame, trained in the loop
     "simn, learned implicit map": {"slam": {"map_kind": "implicit"}},
+    # tracking on the learned map: SlamConfig.for_learned_agent (SDF cache, training on a
+    # worker thread in chunks), and the exact path (docs/tracking.md)
+    "simn, learned tracking (fast)": {"slam": SlamConfig.for_learned_agent().to_dict()},
+    "simn, learned tracking (exact)": {"slam": _learned_exact()},
 }
 
 
@@ -57,7 +78,7 @@ def _stats(x: list[float]) -> dict[str, float]:
 def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dict:
     env = gym.make("SimnOffice-v0", config=env_cfg)
     act, env_ms, track, mapping, plan = [], [], [], [], []
-    outcomes = []
+    outcomes, train_wait = [], []
     for ep in episodes:
         obs, info = env.reset(seed=ep.seed, options={"episode": ep.to_dict()})
         agent = make_agent("simn", env.unwrapped, agent_cfg)
@@ -76,6 +97,10 @@ def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dic
             if term or trunc:
                 outcomes.append(info["episode"]["termination"])
                 break
+        slam = getattr(getattr(agent, "world", None), "slam", None)
+        if slam is not None and slam.trainer is not None:  # training on the worker thread
+            train_wait.append(slam.trainer.wait_ms / max(slam.n_frames, 1))
+            slam.close()
     env.close()
     a = np.asarray(act)
     return {
@@ -85,6 +110,8 @@ def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dic
         "map_ms": _stats(mapping),
         "plan_ms": _stats(plan),
         "env_step_ms": _stats(env_ms),
+        # train_async: mean ms per step the next step waited for the worker's training
+        "train_wait_ms_per_step": float(np.mean(train_wait)) if train_wait else None,
         "terminations": outcomes,
     }
 

@@ -146,6 +146,15 @@ class SlamConfig(Config):
     # the distance (m) a point may move before its k neural-point neighbours are searched again
     # (0: every LM iteration; the search is ~70 % of a query)
     implicit_reuse_neighbors: float = 0.02
+    # implicit tracking through an SDF cache (mapping/sdf_cache.py): the map's SDF and gradient
+    # baked on a sparse grid of this edge (m) where the registration points fall, the LM
+    # iterations interpolate it (first-order Taylor blend, exact on planes); 0: the network at
+    # every LM iteration. Off by default: re-baked every frame (the map changes every frame)
+    # it evaluates the network about as often as LM does (docs/tracking.md)
+    implicit_cache_voxel: float = 0.0
+    # train the learned map on a worker thread while the caller plans and steps; the next
+    # frame joins it before tracking (same poses as synchronous training, slam/trainer.py)
+    train_async: bool = False
     surface_voxel: float = 0.02
     surface_keep: Literal["first", "mean"] = "mean"  # per-voxel model point: first or average
     track_max_depth: float = 4.0  # registration points up to this depth (stereo noise ~ z^2;
@@ -268,6 +277,7 @@ class SlamConfig(Config):
         require(self.sdf_rebuild_growth >= 0, n, "sdf_rebuild_growth", "must be >= 0")
         require(self.implicit_reuse_neighbors >= 0, n, "implicit_reuse_neighbors", ">= 0")
         require(self.implicit_max_dist > 0, n, "implicit_max_dist", "must be > 0")
+        require(self.implicit_cache_voxel >= 0, n, "implicit_cache_voxel", "must be >= 0")
         for f in (
             "track_voxel",
             "surface_voxel",
@@ -366,6 +376,35 @@ class SlamConfig(Config):
             # LM's cost jumped and it stopped early
             track_registration={**d["track_registration"], "grad_norm_min": 0.3},
             mapper=tracking_mapper_config().to_dict(),
+        )
+        return cls.from_dict(_merge(d, changes))
+
+    @classmethod
+    def for_learned_agent(cls, **changes: Any) -> SlamConfig:
+        """:meth:`for_agent` tracking on the learned map, at the loop's cost: the settings of
+        :meth:`for_learned_tracking` (k-NN by KD-trees), training on a worker thread
+        (``train_async``) in short chunks every frame (6 iterations when a
+        frame opens, then 3 per frame on at most 4096 new samples: the agent's 15 per 5 frames
+        without a long step every 5th frame). Not the agent's default (docs/tracking.md,
+        "Tracking on the learned map")."""
+        d = cls.for_agent().to_dict()
+        lt = cls.for_learned_tracking().to_dict()
+        m = lt["mapper"]
+        m["training"] = {**m["training"], "batch_size": 2048, "max_pending": 4096}
+        d.update(
+            map_kind="implicit",
+            track_sdf="implicit",
+            implicit_reuse_neighbors=lt["implicit_reuse_neighbors"],
+            implicit_max_dist=lt["implicit_max_dist"],
+            track_registration={
+                **d["track_registration"],
+                "grad_norm_min": lt["track_registration"]["grad_norm_min"],
+            },
+            mapper=m,
+            train_async=True,
+            open_train_iters=6,
+            train_iters=3,
+            train_every=1,
         )
         return cls.from_dict(_merge(d, changes))
 

@@ -19,6 +19,7 @@ from simn_sim.perception.frame import Frame
 from simn_sim.semantics import FloorClassifierConfig, classify_points
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import FrameState, LocalFrames
+from simn_sim.slam.trainer import TrainWorker
 
 
 def classify(
@@ -38,11 +39,17 @@ def classify(
 
 
 def integrate(
-    frames: LocalFrames, st: FrameState, frame: Frame, T_anchor_cam: np.ndarray, cfg: SlamConfig
+    frames: LocalFrames,
+    st: FrameState,
+    frame: Frame,
+    T_anchor_cam: np.ndarray,
+    cfg: SlamConfig,
+    trainer: TrainWorker | None = None,
 ) -> bool:
     """Add a labelled ``frame`` (camera pose ``T_anchor_cam`` in ``st``'s anchor) to local frame
     ``st``. Returns False when the learned map rejected the frame as empty (counted by the
-    caller), True otherwise."""
+    caller), True otherwise. With a ``trainer`` the training runs on its worker thread and the
+    bookkeeping after it (trained count, node refresh) when it is joined."""
     pts = frame.points
     st.n_obs += 1
     if len(pts) == 0:
@@ -80,8 +87,14 @@ def integrate(
     except EmptyFrameError:
         return False
     if train_iters:
-        m.train(train_iters)
-        st.n_trained += 1
-        if st.n_trained in (1, 2, 4) or st.n_trained % 8 == 0:
-            topo.refresh(fid)
+
+        def trained(_res, st=st, fid=fid) -> None:
+            st.n_trained += 1
+            if st.n_trained in (1, 2, 4) or st.n_trained % 8 == 0:
+                topo.refresh(fid)
+
+        if trainer is None:
+            trained(m.train(train_iters))
+        else:
+            trainer.submit(lambda: m.train(train_iters), trained)
     return True

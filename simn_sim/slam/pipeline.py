@@ -50,6 +50,7 @@ from simn_sim.slam.frames import LocalFrames
 from simn_sim.slam.integrate import classify, integrate
 from simn_sim.slam.revisit import Revisits
 from simn_sim.slam.track import Tracker, TrackResult
+from simn_sim.slam.trainer import TrainWorker
 from simn_sim.tracking.lie import check_pose
 from simn_sim.tracking.localframes import FrameTrigger
 
@@ -122,6 +123,8 @@ class SimnSlam:
         self.tracker = Tracker(cfg, self.frames, self.rng)
         self.revisits = Revisits(cfg, self.frames, self.tracker)
         self.trigger = FrameTrigger(cfg.trigger)
+        # training on a worker thread, joined by the next frame before it tracks
+        self.trainer = TrainWorker(cfg.torch_threads) if cfg.train_async else None
         self.n_frames = 0
         self.n_track_failures = 0
         self.n_map_skipped = 0  # frames the learned map rejected as empty
@@ -189,6 +192,7 @@ class SimnSlam:
         # perceive
         frame = self.perception(rgb, depth)
         track_pts = tr.track_points(frame.points)
+        self.sync()  # the previous frame's training (train_async), before the map is read
         # track
         first = self.n_frames == 0
         if first:
@@ -229,7 +233,7 @@ class SimnSlam:
         if self.cfg.semantics and self.T_base_cam is not None and len(frame):
             labels = classify(frame, T_world_cam, self.T_base_cam, self.cfg.classifier)
         frame = frame.with_labels(labels)
-        if not integrate(frames, st, frame, T_anchor_cam, self.cfg):
+        if not integrate(frames, st, frame, T_anchor_cam, self.cfg, self.trainer):
             self.n_map_skipped += 1
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
@@ -264,7 +268,20 @@ class SimnSlam:
             inlier_rms=res.rms,
         )
         self.last = out
+        if self.trainer is not None:  # the frame's training, on the worker from here on
+            self.trainer.start()
         return out
+
+    def sync(self) -> None:
+        """Wait for the training launched by the last frame (``train_async``; no-op otherwise)
+        and apply its bookkeeping. Call before reading the learned maps between frames."""
+        if self.trainer is not None:
+            self.trainer.join()
+
+    def close(self) -> None:
+        """:meth:`sync` and stop the training thread (``train_async``)."""
+        if self.trainer is not None:
+            self.trainer.close()
 
     def _initial_pose(self, prior: np.ndarray | None) -> np.ndarray:
         if prior is not None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from simn_sim.geometry.se3 import inv_T, orthonormalize, pose_error, se3_exp
 from simn_sim.geometry.voxel import voxel_mean
+from simn_sim.mapping.sdf_cache import SdfCache
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import LocalFrames
 from simn_sim.tracking.lie import constant_velocity_prior, se3_log
@@ -57,6 +58,8 @@ class Tracker:
         self.hist: list[tuple[float, np.ndarray]] = []  # (t, T_anchor_cam) of the last two
         self.last_prior: np.ndarray | None = None
         self._rms_ema: float | None = None  # running inlier RMS of the registrations
+        # SDF caches of the learned maps tracked against (implicit_cache_voxel), per frame id
+        self.caches: dict[int, SdfCache] = {}
 
     # ---- points ------------------------------------------------------------------------------
     def track_points(self, pts: np.ndarray) -> np.ndarray:
@@ -104,6 +107,8 @@ class Tracker:
             if st.n_trained == 0:
                 return None
             c = self.cfg
+            if growth is None and c.implicit_cache_voxel > 0:
+                return self.cache_of(fid).sdf_and_grad
             dmax = c.implicit_max_dist if growth is None else None  # revisits: the map's own
             return st.frame.map.tracking_sdf(c.implicit_reuse_neighbors, dmax).sdf_and_grad
         g = self.cfg.sdf_rebuild_growth if growth is None else growth
@@ -113,6 +118,22 @@ class Tracker:
         if sdf.kernel > 0:
             sdf.kernel = self.kernel
         return sdf.sdf_and_grad
+
+    def cache_of(self, fid: int) -> SdfCache:
+        """The SDF cache of frame ``fid``'s learned map (caches of frames no longer tracked
+        against, older than the previous frame, are dropped)."""
+        cache = self.caches.get(fid)
+        if cache is None:
+            c = self.cfg
+            cache = SdfCache(
+                self.frames.states[fid].frame.map,
+                c.implicit_cache_voxel,
+                c.implicit_max_dist,
+            )
+            cur = self.frames.current_id
+            self.caches = {f: v for f, v in self.caches.items() if f >= cur - 1}
+            self.caches[fid] = cache
+        return cache
 
     def point_sdf(self, P: np.ndarray, N: np.ndarray, max_dist: float) -> PointCloudSDF:
         c = self.cfg
@@ -195,6 +216,9 @@ class Tracker:
         topo = self.frames.topo
         T_cur_f = inv_T(topo.anchor(self.frames.current_id)) @ topo.anchor(fid)
         init = inv_T(T_cur_f) @ T_pred
+        cache = getattr(sdf, "__self__", None)
+        if isinstance(cache, SdfCache):  # bake / refresh where the points are predicted
+            cache.prepare(pts.astype(np.float64) @ init[:3, :3].T + init[:3, 3])
         res = self.register_c2f(pts, sdf, init, self.reg_cfg)
         if not res.success:
             return TrackResult(T_pred, False, res.reason, res.iterations, fid, res.final_rms)
