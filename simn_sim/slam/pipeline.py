@@ -15,9 +15,10 @@ Per frame (:meth:`SimnSlam.process`):
 4. topology (:mod:`simn_sim.slam.frames`, :mod:`simn_sim.slam.revisit`):
    :class:`~simn_sim.tracking.localframes.FrameTrigger` (travel or rotation); on
    closing, the map is consolidated (EWC snapshot) and its topological node refreshed; the new
-   frame is anchored at the current pose with an odometry arc, and a revisit check
-   (:func:`~simn_sim.tracking.topomap.close_loop`: descriptor candidates -> registration ->
-   inlier test -> gtsam) may move all anchors (``anchors_version`` increments);
+   frame is anchored at the current pose with an odometry arc, and, once the frame's first
+   observation is integrated (step 6), a revisit check (:mod:`simn_sim.slam.revisit`: candidates
+   ranked by the learned key points' features or by descriptors -> registration -> inlier test
+   -> gtsam) may move all anchors (``anchors_version`` increments);
 5. integrate (:mod:`simn_sim.slam.integrate`): semantics with ``T_base_cam`` the floor is the base plane ``z = 0`` of the estimated base
    pose (no RANSAC); labels per point (0 unknown, 1 floor, 2 obstacle, 3 overhead);
 6. the frame's points (anchor coordinates, with colours and labels) go into the local
@@ -222,7 +223,6 @@ class SimnSlam:
             new_frame = True
             tr.reanchor(inv_T(frames.topo.anchor(fid)) @ frames.topo.anchor(old))
             T_anchor_cam = np.eye(4)
-            revisit_fid = self.revisits.on_open(fid, track_pts, T_world_cam)
         elif not first:
             revisit_fid = self.revisits.step()
         if revisit_fid is not None:  # anchors moved: the pose through the current anchor
@@ -235,6 +235,13 @@ class SimnSlam:
         frame = frame.with_labels(labels)
         if not integrate(frames, st, frame, T_anchor_cam, self.cfg, self.trainer):
             self.n_map_skipped += 1
+        if new_frame and not first:
+            # the revisit check of a new frame runs once its first observation is in its map:
+            # the learned ranking matches the key points (and features) trained on it; the
+            # labels above do not depend on where the anchors are
+            revisit_fid = self.revisits.on_open(frames.current_id, track_pts, T_world_cam)
+            if revisit_fid is not None:
+                T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
         st.frame.t_end = t

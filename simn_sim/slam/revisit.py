@@ -1,8 +1,16 @@
 """Topology: revisit checks of a newly opened local frame against earlier ones.
 
-Candidates come from the topological map's frame descriptors
-(:meth:`~simn_sim.tracking.topomap.TopoMap.candidates`), optionally filtered by overlap with
-the candidate's region; each is verified by registration and an inlier test, and an accepted
+Candidates are ranked (``SlamConfig.revisit_features``, :meth:`Revisits.candidates`) by
+
+* ``learned`` (the default with the learned map): the new frame's neural key points, trained on
+  its first observation, matched to each earlier frame's key points by their learned feature
+  vectors (:class:`~simn_sim.tracking.descriptors.KeyPointIndex`, through the anchors);
+* ``keypoints``: the same matching without the features (the share of key points in reach);
+* ``geometric`` (the default with the point store): the topological map's pooled frame
+  descriptors (:meth:`~simn_sim.tracking.topomap.TopoMap.candidates`) of the observation;
+
+optionally filtered by overlap with the candidate's region; each is verified by registration
+and an inlier test, and an accepted
 revisit closes the loop with the gtsam pose graph
 (:func:`~simn_sim.tracking.topomap.close_loop_steps`), moving the anchors. The check runs at
 once, ``revisit_checks_per_frame`` candidates per following frame, or
@@ -16,11 +24,15 @@ from typing import Any
 
 import numpy as np
 
-from simn_sim.geometry.se3 import transform_points
+from simn_sim.geometry.se3 import inv_T, transform_points
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import LocalFrames
 from simn_sim.slam.track import Tracker
-from simn_sim.tracking.topomap import close_loop_steps, describe
+from simn_sim.tracking.descriptors import KeyPointIndex
+from simn_sim.tracking.localframes import unpack_feature_points
+from simn_sim.tracking.topomap import close_loop_steps, describe, verify_candidate_steps
+
+RANKINGS = ("learned", "keypoints", "geometric")
 
 
 class RevisitError(RuntimeError):
@@ -37,8 +49,15 @@ class Revisits:
         self.n_accepted = 0
         self.log: list[dict[str, Any]] = []
         # deferred checks: (frame, points, remaining candidates) or a running generator
-        self._pending: tuple[int, np.ndarray, list[int]] | None = None
+        self._pending: tuple[int, np.ndarray, list[tuple[int, float]]] | None = None
         self._job: tuple[int, Any] | None = None
+        f = cfg.revisit_features
+        self.ranking = (
+            f if f != "auto" else ("learned" if cfg.map_kind == "implicit" else "geometric")
+        )
+        # per frame: (key, KeyPointIndex) while the frame's map is unchanged
+        self._index: dict[int, tuple[tuple, KeyPointIndex | None]] = {}
+        self._ranked: list[tuple[int, float]] = []  # the last check's ranked candidates
 
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the check: against frame ``fid``'s SDF."""
@@ -55,16 +74,80 @@ class Revisits:
             raise RevisitError(f"frame {fid} has no map to register against")
         return self.tracker.register_c2f(pts, sdf, T_init, self.cfg.registration)
 
-    def candidates(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> list[int]:
-        """Earlier frames to check for a revisit, most similar first."""
+    def _key_points(self, fid: int) -> KeyPointIndex | None:
+        """Frame ``fid``'s key points and learned features (anchor coordinates), indexed; None
+        for a frame without key points. Rebuilt when its map grew or trained."""
+        m = self.frames.topo.frame(fid).map
+        if hasattr(m, "n_trainings"):  # ImplicitMap: points are only added; training moves f
+            key: tuple | None = (len(m.points), m.n_trainings)
+        elif hasattr(m, "surface"):  # PointFrameMap: its surface store
+            key = (len(m.surface), m.surface.version)
+        else:
+            key = None
+        hit = self._index.get(fid)
+        if key is not None and hit is not None and hit[0] == key:
+            return hit[1]
+        P, F, _ = unpack_feature_points(m.feature_points())
+        idx = KeyPointIndex(P, F) if len(P) else None
+        self._index[fid] = (key, idx)
+        return idx
+
+    def _rank_key_points(self, fid: int, use_features: bool) -> list[tuple[int, float]] | None:
+        """Earlier frames scored by matching frame ``fid``'s key points to theirs; None when
+        ``fid`` has no key points yet."""
+        c, topo, dc = self.cfg.loop, self.frames.topo, self.frames.topo.desc_cfg
+        q = self._key_points(fid)
+        if q is None:
+            return None
+        tree_pts = q.tree.data
+        stride = -(-len(tree_pts) // dc.match_points)
+        Pq, Fq = tree_pts[::stride], q.features[::stride]
+        Fq = Fq if use_features and q.has_features else None
+        A = topo.anchor(fid)
+        Pw = transform_points(A, Pq)
+        lo, hi = Pw[:, :2].min(axis=0), Pw[:, :2].max(axis=0)
+        skip = {fid, *topo.frame_ids[-c.exclude_recent :]} if c.exclude_recent else {fid}
+        out = []
+        for f in topo.frame_ids:
+            if f in skip:
+                continue
+            r = topo.region(f)
+            g = dc.match_radius
+            if not np.all(np.isfinite(r)) or np.any(lo > r[2:] + g) or np.any(hi < r[:2] - g):
+                continue  # no key point of the observation can reach the frame's
+            idx = self._key_points(f)
+            if idx is None:
+                continue
+            T = inv_T(topo.anchor(f)) @ A
+            score, reach = idx.match(transform_points(T, Pq), Fq, dc)
+            if reach >= c.min_reach and (Fq is None or score >= c.min_match):
+                out.append((int(f), score))
+        out.sort(key=lambda x: -x[1])
+        return out[: c.top]
+
+    def candidates(
+        self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray, ranking: str | None = None
+    ) -> list[tuple[int, float]]:
+        """Earlier frames to check for a revisit, ``[(frame, score)]`` best first, ranked by
+        ``ranking`` (default: :attr:`ranking`; see the module docstring). ``pts``: the
+        observation (camera frame) at ``T_world_cam``, which the geometric ranking describes;
+        the key-point rankings use frame ``fid``'s map (the observation integrated), and fall
+        back to the geometric ranking while it has no key points."""
+        ranking = ranking or self.ranking
+        if ranking not in RANKINGS:
+            raise ValueError(f"ranking must be one of {RANKINGS}, got {ranking!r}")
         if len(self.frames) <= self.cfg.loop.exclude_recent + 1:
             return []
         c, topo = self.cfg.loop, self.frames.topo
         Pw = transform_points(T_world_cam, pts.astype(np.float64))
-        desc = describe(Pw, None, topo.desc_cfg)
-        found = topo.candidates(desc, c.exclude_recent, c.top, c.min_similarity, exclude=[fid])
+        found = None
+        if ranking != "geometric":
+            found = self._rank_key_points(fid, use_features=ranking == "learned")
+        if found is None:
+            desc = describe(Pw, None, topo.desc_cfg)
+            found = topo.candidates(desc, c.exclude_recent, c.top, c.min_similarity, exclude=[fid])
         out = []
-        for f, _ in found:
+        for f, sim in found:
             if self.cfg.revisit_min_overlap > 0:
                 # the check moves the guess by at most max_correction_m: an observation that does
                 # not reach the candidate's region grown by that much cannot pass it
@@ -73,10 +156,25 @@ class Revisits:
                 inside = np.all((Pw[:, :2] >= r[:2] - g) & (Pw[:, :2] <= r[2:] + g), axis=1)
                 if not np.all(np.isfinite(r)) or inside.mean() < self.cfg.revisit_min_overlap:
                     continue
-            out.append(int(f))
+            out.append((int(f), float(sim)))
         return out
 
-    def _steps(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray, cands: list[int] | None):
+    def verify(self, candidate: int, pts: np.ndarray, T_world_cam: np.ndarray) -> bool:
+        """Whether the observation ``pts`` (camera frame, taken at ``T_world_cam``) passes the
+        revisit check's registration against frame ``candidate``; adds no loop and moves no
+        anchor (for measuring candidates, e.g. ``scripts/bench_revisits.py``)."""
+        steps = verify_candidate_steps(
+            self.frames.topo, candidate, pts, T_world_cam, self._loop_register, self.cfg.loop
+        )
+        try:
+            while True:
+                next(steps)
+        except StopIteration as done:
+            return done.value[0] is not None
+        except RevisitError:
+            return False
+
+    def _steps(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray, cands: list | None):
         return close_loop_steps(
             self.frames.topo,
             fid,
@@ -105,6 +203,8 @@ class Revisits:
         self.log.append(
             {
                 "frame": fid,
+                "ranking": self.ranking,
+                "candidates": [[f, round(v, 4)] for f, v in self._ranked],
                 "accepted": res.accepted,
                 "attempts": [
                     {
@@ -123,28 +223,28 @@ class Revisits:
         self.frames.anchors_version += 1
         return True, int(res.accepted)
 
-    def _check_now(self, fid, pts, T_world_cam, cands: list[int] | None = None) -> int | None:
-        if cands is None and len(self.frames) <= self.cfg.loop.exclude_recent + 1:
-            return None
+    def _check_now(self, fid, pts, T_world_cam, cands: list) -> int | None:
         return self._advance(fid, self._steps(fid, pts, T_world_cam, cands), None)[1]
 
     def on_open(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
-        """Frame ``fid`` opened with observation ``pts`` at ``T_world_cam`` (its anchor): check
-        now, or queue the check. Returns the accepted frame when checked now and accepted."""
+        """Frame ``fid`` opened with observation ``pts`` at ``T_world_cam`` (its anchor) and
+        the observation integrated into its map: check now, or queue the check. Returns the
+        accepted frame when checked now and accepted."""
         self._pending = self._job = None
         if not self.cfg.revisits or len(pts) < 100:
             return None
+        if len(self.frames) <= self.cfg.loop.exclude_recent + 1:
+            return None
+        cands = self._ranked = self.candidates(fid, pts, T_world_cam)
         if self.cfg.revisit_registrations_per_frame > 0:
-            cands = self.candidates(fid, pts, T_world_cam)
             if cands:
                 self._job = (fid, self._steps(fid, pts, T_world_cam, cands))
             return None
         if self.cfg.revisit_checks_per_frame > 0:
-            cands = self.candidates(fid, pts, T_world_cam)
             if cands:
                 self._pending = (fid, pts, cands)
             return None
-        return self._check_now(fid, pts, T_world_cam)
+        return self._check_now(fid, pts, T_world_cam, cands)  # logged even without candidates
 
     def step(self) -> int | None:
         """Advance a deferred check by this frame's budget; the accepted frame or None."""

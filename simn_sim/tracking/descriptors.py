@@ -1,6 +1,18 @@
 """Frame descriptors for place recognition in the topological map
 (:mod:`simn_sim.tracking.topomap`; the descriptor's three parts are described there):
-:class:`DescriptorConfig`, :class:`FrameDescriptor`, :func:`describe` and :func:`similarity`."""
+:class:`DescriptorConfig`, :class:`FrameDescriptor`, :func:`describe` and :func:`similarity`.
+
+:class:`KeyPointIndex` ranks revisit candidates by their learned key points instead
+(``SlamConfig.revisit_features``): each of the query's key points is matched to the ``match_k``
+nearest key points of a candidate frame within ``match_radius`` (the drift the check expects),
+and the score is the mean over the query's points of the best cosine similarity of their
+learned feature vectors (each frame's features standardised per dimension; 0 for a point
+without a key point in reach). Without features it is the share of query points in reach.
+The per-frame mean / standard deviation pooled by :func:`describe` loses what the features say
+about a place: on the rendered loops, features at corresponding key points of two frames agree
+(cosine 0.3-0.8) while the frames' feature statistics do not separate places (docs/slam.md,
+"Revisit candidates").
+"""
 
 from __future__ import annotations
 
@@ -10,7 +22,14 @@ import numpy as np
 
 from simn_sim.config import Config, require
 
-__all__ = ["DescriptorConfig", "FrameDescriptor", "describe", "similarity"]
+__all__ = [
+    "DescriptorConfig",
+    "FrameDescriptor",
+    "KeyPointIndex",
+    "describe",
+    "similarity",
+    "standardized_features",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,10 +46,18 @@ class DescriptorConfig(Config):
     # many (its region always uses all of them); 0: all. Descriptors are recomputed for every
     # frame whose anchor the pose graph moves, and a 1 m occupancy grid needs few points.
     max_points: int = 0
+    # key-point matching (KeyPointIndex): reach of a query key point in the candidate frame
+    # (drift the check expects), neighbours compared, query key points used (even stride)
+    match_radius: float = 0.15
+    match_k: int = 6
+    match_points: int = 500
 
     def validate(self) -> None:
         n = type(self).__name__
         require(self.occupancy_cell > 0, n, "occupancy_cell", "must be > 0")
+        require(self.match_radius > 0, n, "match_radius", "must be > 0")
+        require(self.match_k >= 1, n, "match_k", "must be >= 1")
+        require(self.match_points >= 1, n, "match_points", "must be >= 1")
         require(self.max_points >= 0, n, "max_points", "must be >= 0 (0: all points)")
         require(self.height_range[1] > self.height_range[0], n, "height_range", "must increase")
         require(self.height_bins >= 2 and self.radius_bins >= 2, n, "height_bins", "need >= 2 bins")
@@ -124,3 +151,66 @@ def similarity(
         s += cfg.feature_weight * float(a.feature @ b.feature)
         w += cfg.feature_weight
     return s / w
+
+
+def standardized_features(features: np.ndarray) -> np.ndarray:
+    """(N, d) features standardised per dimension (over the N points) and scaled to unit norm
+    per point; (N, 0) in, (N, 0) out."""
+    F = np.asarray(features, dtype=np.float64)
+    if F.ndim != 2 or F.shape[1] == 0 or len(F) == 0:
+        return np.zeros((len(F), 0), np.float32)
+    Z = (F - F.mean(axis=0)) / (F.std(axis=0) + 1e-9)
+    return (Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+
+
+class KeyPointIndex:
+    """A frame's key points (its own coordinates) and standardised learned features, with a
+    k-d tree, for :meth:`match` (see the module docstring)."""
+
+    def __init__(self, points: np.ndarray, features: np.ndarray | None = None) -> None:
+        from scipy.spatial import cKDTree
+
+        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(P) == 0:
+            raise ValueError("a key-point index needs points")
+        self.tree = cKDTree(P)
+        self.n = len(P)
+        self.features = standardized_features(
+            np.zeros((len(P), 0)) if features is None else features
+        )
+
+    @property
+    def has_features(self) -> bool:
+        return self.features.shape[1] > 0
+
+    def match(
+        self,
+        points: np.ndarray,
+        features: np.ndarray | None,
+        cfg: DescriptorConfig | None = None,
+    ) -> tuple[float, float]:
+        """Query key points (N, 3) in this frame's coordinates with their standardised features
+        (N, d) (:func:`standardized_features`; None: geometry only). Returns (score, reach):
+        reach is the share of query points with a key point within ``match_radius``; score is
+        the mean best feature cosine (clipped at 0, 0 out of reach), or reach without
+        features on either side."""
+        cfg = cfg or DescriptorConfig()
+        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(P) == 0:
+            return 0.0, 0.0
+        k = min(cfg.match_k, self.n)
+        d, j = self.tree.query(P, k, distance_upper_bound=cfg.match_radius)
+        d, j = d.reshape(len(P), k), j.reshape(len(P), k)
+        ok = np.isfinite(d)
+        reach = float(ok[:, 0].mean())
+        use = (
+            features is not None
+            and self.has_features
+            and features.shape[1] == self.features.shape[1]
+        )
+        if not use:
+            return reach, reach
+        Fn = self.features[np.where(ok, j, 0)]  # (N, k, d)
+        cos = np.where(ok, np.einsum("nkd,nd->nk", Fn, features), -1.0)
+        best = np.where(ok[:, 0], np.maximum(cos.max(axis=1), 0.0), 0.0)
+        return float(best.mean()), reach

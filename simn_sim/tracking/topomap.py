@@ -235,6 +235,13 @@ class LoopClosureConfig(Config):
     exclude_recent: int = 3
     top: int = 3
     min_similarity: float = 0.5
+    # key-point rankings (SlamConfig.revisit_features "learned" / "keypoints",
+    # descriptors.KeyPointIndex): a candidate needs at least min_reach of the query's key points
+    # within reach of its own and, ranked by the learned features, a score of at least
+    # min_match (chosen on two rendered loops, where every true revisit had reach >= 0.46 and
+    # score >= 0.21; docs/slam.md, "Revisit candidates")
+    min_reach: float = 0.3
+    min_match: float = 0.2
     max_correction_m: float = 1.0  # drift budget: registration may move the guess this far...
     max_correction_deg: float = 30.0  # ... and turn it this much, no more
     yaw_search_deg: tuple[float, ...] = (0.0, 7.5, -7.5, 15.0, -15.0)  # extra starting headings
@@ -248,6 +255,8 @@ class LoopClosureConfig(Config):
         require(self.exclude_recent >= 0, n, "exclude_recent", "must be >= 0")
         require(self.top >= 1, n, "top", "must be >= 1")
         require(-1 <= self.min_similarity <= 1, n, "min_similarity", "must be in [-1, 1]")
+        require(0 <= self.min_match <= 1, n, "min_match", "must be in [0, 1]")
+        require(0 <= self.min_reach <= 1, n, "min_reach", "must be in [0, 1]")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
         require(self.cov_floor_rot > 0 and self.cov_floor_trans > 0, n, "cov_floor_rot", "> 0")
@@ -296,7 +305,7 @@ def close_loop(
     register_fn: RegisterFn,
     cfg: LoopClosureConfig | None = None,
     descriptor: FrameDescriptor | None = None,
-    candidate_ids: Iterable[int] | None = None,
+    candidate_ids: Iterable[int | tuple[int, float]] | None = None,
     pose_graph_cfg: PoseGraphConfig | None = None,
 ) -> LoopClosureResult:
     """Check whether the camera revisits an earlier frame; on success add the loop and optimise.
@@ -304,8 +313,9 @@ def close_loop(
     current: id of the frame being built (its anchor and the tracked ``T_world_cam`` give the
     camera pose in it). points_cam: (N, 3) the current observation, camera frame. Candidates come
     from descriptor similarity (``descriptor`` defaults to one computed from ``points_cam``), or
-    from ``candidate_ids``. A candidate is accepted when ``register_fn(fid, points_cam,
-    T_fid_cam_guess)`` succeeds and moves the guess by at most the drift budget.
+    from ``candidate_ids`` (frame ids, or ``(id, similarity)`` pairs, checked in that order). A
+    candidate is accepted when ``register_fn(fid, points_cam, T_fid_cam_guess)`` succeeds and
+    moves the guess by at most the drift budget.
     """
     steps = close_loop_steps(
         topo, current, points_cam, T_world_cam, register_fn, cfg, descriptor, candidate_ids,
@@ -326,7 +336,7 @@ def close_loop_steps(
     register_fn: RegisterFn,
     cfg: LoopClosureConfig | None = None,
     descriptor: FrameDescriptor | None = None,
-    candidate_ids: Iterable[int] | None = None,
+    candidate_ids: Iterable[int | tuple[int, float]] | None = None,
     pose_graph_cfg: PoseGraphConfig | None = None,
 ) -> Generator[None, None, LoopClosureResult]:
     """:func:`close_loop` as a generator that yields after each registration and returns the
@@ -345,38 +355,19 @@ def close_loop_steps(
             descriptor, cfg.exclude_recent, cfg.top, cfg.min_similarity, exclude=[current]
         )
     else:
-        cands = [(int(c), float("nan")) for c in candidate_ids if int(c) != current]
+        cands = []
+        for c in candidate_ids:  # ids, or (id, similarity) pairs ranked by the caller
+            fid, sim = (c[0], c[1]) if isinstance(c, tuple | list) else (c, float("nan"))
+            if int(fid) != current:
+                cands.append((int(fid), float(sim)))
     attempts: list[LoopAttempt] = []
     for fid, sim in cands:
-        A = topo.anchor(fid)
-        guess = inv_T(A) @ T_world_cam
-        best, whys = None, []
-        for yaw in cfg.yaw_search_deg:
-            # turn the guess about the world vertical through the camera centre (drift is
-            # mostly heading for a ground robot; it is what leaves the registration basin first)
-            Tw = T_world_cam.copy()
-            Tw[:3, :3] = rot_z(np.radians(yaw)) @ Tw[:3, :3]
-            res = register_fn(fid, points_cam, inv_T(A) @ Tw)
-            yield
-            if not res.success:
-                whys.append(f"{yaw:+.1f} deg: registration: {res.reason}")
-                continue
-            dt, dr = pose_error(guess, res.pose)
-            if dt > cfg.max_correction_m or np.degrees(dr) > cfg.max_correction_deg:
-                whys.append(f"{yaw:+.1f} deg: correction {dt:.2f} m / {np.degrees(dr):.1f} deg")
-                continue
-            frac = getattr(res, "inlier_fraction", 1.0)
-            if frac < cfg.min_inlier_fraction:
-                whys.append(f"{yaw:+.1f} deg: only {frac:.2f} of the points fit")
-                continue
-            if best is None or frac > best[1]:
-                best = (res, frac)
-            if frac >= cfg.good_enough_fraction:
-                break
-        if best is None:
-            attempts.append(LoopAttempt(fid, sim, False, "; ".join(whys), None))
+        res, why = yield from verify_candidate_steps(
+            topo, fid, points_cam, T_world_cam, register_fn, cfg
+        )
+        if res is None:
+            attempts.append(LoopAttempt(fid, sim, False, why, None))
             continue
-        res = best[0]
         attempts.append(LoopAttempt(fid, sim, True, "ok", res.pose))
         T_i_j = res.pose @ inv_T(T_cur_cam)  # current frame's anchor in the candidate frame
         Ad = adjoint(T_cur_cam)  # camera-frame covariance -> covariance of T_i_j
@@ -390,6 +381,52 @@ def close_loop_steps(
             return LoopClosureResult(None, attempts, None, pg)
         return LoopClosureResult(fid, attempts, T_i_j, pg)
     return LoopClosureResult(None, attempts, None, None)
+
+
+def verify_candidate_steps(
+    topo: TopoMap,
+    fid: int,
+    points_cam: np.ndarray,
+    T_world_cam: np.ndarray,
+    register_fn: RegisterFn,
+    cfg: LoopClosureConfig | None = None,
+) -> Generator[None, None, tuple[RegistrationResult | None, str]]:
+    """The verification of one revisit candidate ``fid`` (a generator that yields after each
+    registration): the observation ``points_cam`` taken at ``T_world_cam`` is registered against
+    the frame from the guess and from the guess turned by each ``yaw_search_deg``; a result
+    passes when it moves the guess by at most the drift budget and at least
+    ``min_inlier_fraction`` of the points fit. Returns (the best passing registration, "ok") or
+    (None, why each heading failed). Nothing in ``topo`` changes."""
+    cfg = cfg or LoopClosureConfig()
+    T_world_cam = check_pose(T_world_cam, "T_world_cam")
+    A = topo.anchor(fid)
+    guess = inv_T(A) @ T_world_cam
+    best, whys = None, []
+    for yaw in cfg.yaw_search_deg:
+        # turn the guess about the world vertical through the camera centre (drift is
+        # mostly heading for a ground robot; it is what leaves the registration basin first)
+        Tw = T_world_cam.copy()
+        Tw[:3, :3] = rot_z(np.radians(yaw)) @ Tw[:3, :3]
+        res = register_fn(fid, points_cam, inv_T(A) @ Tw)
+        yield
+        if not res.success:
+            whys.append(f"{yaw:+.1f} deg: registration: {res.reason}")
+            continue
+        dt, dr = pose_error(guess, res.pose)
+        if dt > cfg.max_correction_m or np.degrees(dr) > cfg.max_correction_deg:
+            whys.append(f"{yaw:+.1f} deg: correction {dt:.2f} m / {np.degrees(dr):.1f} deg")
+            continue
+        frac = getattr(res, "inlier_fraction", 1.0)
+        if frac < cfg.min_inlier_fraction:
+            whys.append(f"{yaw:+.1f} deg: only {frac:.2f} of the points fit")
+            continue
+        if best is None or frac > best[1]:
+            best = (res, frac)
+        if frac >= cfg.good_enough_fraction:
+            break
+    if best is None:
+        return None, "; ".join(whys)
+    return best[0], "ok"
 
 
 def as_frame_map(obj: Any) -> FrameMap:
