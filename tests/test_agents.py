@@ -294,3 +294,19 @@ def test_episode_record_has_act_timing_and_tracking_map():
     assert rec["steps"] == 5 and rec["tracking_map"] == "points"
     assert 0 < rec["act_ms_mean"] <= rec["act_ms_p95"] * 5
     assert rec["act_ms_p95"] > 0
+
+
+def test_episode_ate_pairs_each_estimate_with_the_pose_it_was_made_at():
+    """Exact odometry (ideal sensing) as the pose: the ATE is zero, not the step's motion."""
+    from simn_sim.experiments.runner import run_episode
+
+    rec = run_episode(
+        "SimnOffice-v0",
+        {"width": 160, "height": 120, "max_episode_steps": 12, "sensing": "ideal"},
+        "simn",
+        {"pose_source": "odometry", "initial_scan_deg": 0.0},
+        seed=3,
+    )
+    assert rec["error"] is None, rec["error"]
+    assert rec["path_length_m"] > 0.1, rec["path_length_m"]
+    assert rec["ate_rmse_m"] < 1e-4, rec["ate_rmse_m"]
