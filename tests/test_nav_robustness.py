@@ -14,6 +14,7 @@ from simn_sim.env.traps import trap_info
 from simn_sim.experiments.runner import run_episode
 from simn_sim.geometry.freespace import FreeSpace2D
 from simn_sim.paths import envs_dir
+from simn_sim.semantics import OBSTACLE
 
 # per-step timings differ between runs; everything else in the record must not
 TIMING_FIELDS = {
@@ -86,3 +87,91 @@ def test_bump_detector_ignores_actuation_noise_and_catches_sliding_contact():
     # a step commanded at standstill or backwards is never a contact sign
     still = BumpDetector(0.1)
     assert not any(still.update(0.0, _step(0.0, 0.0)) for _ in range(10))
+
+
+# ---- map clearing: bumps expire, and a goal closed off on the map clears it ------------------
+def _occupied(checker) -> set[tuple[int, int]]:
+    res = checker.cfg.resolution
+    return {tuple(c) for c in np.round(checker.occupied_centres()[:, :2] / res).astype(int)}
+
+
+@pytest.fixture(scope="module")
+def ideal_env():
+    import gymnasium as gym
+
+    e = gym.make("SimnOfficeIdeal-v0", config={"width": 160, "height": 120})
+    yield e
+    e.close()
+
+
+def _ring(agent, centre_xy: np.ndarray, radius: float) -> None:
+    """A closed ring of bump arcs (9 arcs of 80 deg) of ``radius`` around ``centre_xy``."""
+    T = np.eye(4)
+    T[:2, 3] = centre_xy
+    for a in np.radians(np.arange(0, 360, 40)):
+        agent.obstacles.add_bump(T, radius - 0.03, float(a))
+
+
+def test_bump_points_leave_the_map_after_bump_ttl_views(ideal_env):
+    from simn_sim.agents import make_agent
+    from simn_sim.planning import CollisionChecker
+
+    obs, info = ideal_env.reset(seed=0)
+    cfg = {"initial_scan_deg": 0.0, "obstacles": {"bump_ttl": 4, "rebuild_every": 1}}
+    agent = make_agent("simn", ideal_env.unwrapped, cfg)
+    agent.reset(obs, info)
+    obs, *_ = ideal_env.step(agent.act(obs))
+    agent.obstacles.add_bump(agent.world.pose, 0.25, 0.0)
+    arc = agent.obstacles.bump_points[0]
+    for k in range(6):
+        obs, *_ = ideal_env.step(np.zeros(2, np.float32))  # the robot stays: the same map
+        agent.act(obs)
+        # the planning model is exactly the local frames' obstacle points plus live bumps
+        ref = CollisionChecker(agent.obstacles.planning.cfg)
+        pts = agent.world.frames.obstacle_points_world()
+        live = agent.obstacles.bump_points
+        allp = np.concatenate([pts, *live]) if live else pts
+        ref.update(allp, np.full(len(allp), OBSTACLE, np.int8))
+        assert _occupied(agent.obstacles.planning) == _occupied(ref)
+        assert (len(live) == 1) == (k < 4), f"view {k} after the bump: {len(live)} bumps"
+    assert len(agent.obstacles.bump_points) == 0
+    free_of_walls = agent.obstacles.planning.clearance(arc[:, :2]) > 0.0
+    assert free_of_walls.all()  # nothing else occupies the arc: it left the map
+
+
+def test_goal_closed_off_on_the_map_clears_it_and_a_route_follows(ideal_env):
+    """A ring of bump points around the goal closes it off (no route under the safety margin);
+    after ``clear_after`` steps without a route the agent clears the map (bumps and the local
+    frames before the current one leave the obstacle model) and plans a route again."""
+    from simn_sim.agents import make_agent
+
+    obs, info = ideal_env.reset(seed=0)
+    cfg = {"initial_scan_deg": 0.0, "clear_after": 5, "obstacles": {"bump_ttl": 0}}
+    agent = make_agent("simn", ideal_env.unwrapped, cfg)
+    agent.reset(obs, info)
+    obs, *_ = ideal_env.step(agent.act(obs))
+    assert agent.path is not None  # the goal is reachable on the map
+    _ring(agent, agent.goal, 0.6)
+    agent.path = None
+    states = []
+    for _ in range(5):
+        obs, *_ = ideal_env.step(agent.act(obs))
+        states.append(agent.state())
+    assert states == ["no_plan"] * 5 and agent.counters()["map_clears"] == 1
+    assert agent.obstacles.bump_points == []
+    assert agent.obstacles.min_frame == agent.world.frames.current_id
+    # it looks all the way round, then plans: a route to the goal exists again
+    for _ in range(agent._full_scan_steps + 2):
+        obs, *_ = ideal_env.step(agent.act(obs))
+    assert agent.path is not None and agent.state() == "following"
+    assert np.hypot(*(agent.path[-1] - agent.goal)) < 0.2
+
+
+def test_map_clearing_config_is_validated(ideal_env):
+    from simn_sim.agents import make_agent
+    from simn_sim.config import ConfigError
+
+    with pytest.raises(ConfigError, match="clear_after"):
+        make_agent("simn", ideal_env.unwrapped, {"clear_after": -1})
+    with pytest.raises(ConfigError, match="bump_ttl"):
+        make_agent("simn", ideal_env.unwrapped, {"obstacles": {"bump_ttl": -2}})

@@ -132,6 +132,12 @@ class SimnAgentConfig(Config):
     # default: on office_nav_v2 0.05 won one episode, lost one and added 9 collision events in
     # 43, docs/navigation.md)
     squeeze: float = 0.0
+    # no route on the map for clear_after control steps in a row (the goal closed off by map
+    # errors: copies of a door jamb from frames anchored a few cm apart, a bump arc in a
+    # doorway) -> clear the map (ObstacleMap.forget: only the local frames from the current
+    # one on, no bumps) and look around; at most once per clear_cooldown steps; 0: off
+    clear_after: int = 30
+    clear_cooldown: int = 200
     seed: int = 0
 
     @classmethod
@@ -163,6 +169,8 @@ class SimnAgentConfig(Config):
         require(self.stall_steps >= 1, n, "stall_steps", "must be >= 1")
         require(self.progress_eps > 0, n, "progress_eps", "must be > 0")
         require(self.force_steps >= 0, n, "force_steps", "must be >= 0")
+        require(self.clear_after >= 0, n, "clear_after", "must be >= 0 (0: off)")
+        require(self.clear_cooldown >= 1, n, "clear_cooldown", "must be >= 1")
         require(
             0 <= self.squeeze < self.obstacles.collision.robot_radius,
             n,
@@ -247,6 +255,8 @@ class SimnAgent:
         self.squeezes = 0  # routes found only with the squeezed model
         self._squeeze_until = -1
         self._squeezed = None  # the squeezed collision model while squeezing
+        self._no_plan_steps = 0  # control steps in a row without a route
+        self._last_clear = -math.inf  # the step of the last map clear
         self._step = self.world.update(0.0, obs, self.T_odom_prev)
 
     @staticmethod
@@ -425,7 +435,7 @@ class SimnAgent:
             sq = CollisionChecker(
                 c.replace(robot_radius=c.robot_radius - self.cfg.squeeze, margin=0.0)
             )
-            pts = self.world.frames.obstacle_points_world()
+            pts = self.world.frames.obstacle_points_world(self.obstacles.min_frame)
             if self.obstacles.bump_points:
                 pts = np.concatenate([pts, *self.obstacles.bump_points])
             if len(pts):
@@ -493,6 +503,23 @@ class SimnAgent:
 
     def _look_around(self) -> np.ndarray:
         return np.array([0.0, 0.6 * self.follower_cfg.w_max], np.float32)
+
+    def _no_route(self) -> np.ndarray:
+        """No route to the goal on the map: look around (turning reveals more of the map); after
+        ``clear_after`` such steps in a row, clear the map and look all the way round."""
+        self._no_plan_steps += 1
+        c = self.cfg
+        if (
+            c.clear_after > 0
+            and self._no_plan_steps >= c.clear_after
+            and self.steps - self._last_clear >= c.clear_cooldown
+        ):
+            self.obstacles.forget(self.world.frames.current_id)
+            self._last_clear = self.steps
+            self._no_plan_steps = 0
+            self._scan_steps = self._full_scan_steps
+            self._best_ctg, self._best_ctg_step = math.inf, self.steps
+        return self._look_around()
 
     def _act(self, obs: dict) -> np.ndarray:
         self.steps += 1
@@ -562,13 +589,14 @@ class SimnAgent:
             else:
                 self._plan(xy, scheduled=True)
         if self.path is None:  # look around: turning reveals more of the map
-            return self._look_around()
+            return self._no_route()
         cmd = self.follower.step(pose)
         if cmd.status in ("blocked", "stale"):
             self._plan(xy)
             if self.path is None:
-                return self._look_around()
+                return self._no_route()
             cmd = self.follower.step(pose)
+        self._no_plan_steps = 0
         if cmd.status == "reached" and float(np.hypot(*(self.goal - xy))) > 0.2:
             self._plan(xy)  # reached a sub-goal: plan on towards the goal
             if self.path is not None:
@@ -589,6 +617,7 @@ class SimnAgent:
             "lost_progress": getattr(self, "lost_progress", 0),
             "field_routes": getattr(self, "field_routes", 0),
             "squeezes": getattr(self, "squeezes", 0),
+            "map_clears": self.obstacles.clears if self.world is not None else 0,
         }
         if self.world is not None:
             out.update(self.world.counters())

@@ -235,25 +235,29 @@ class LocalFrames:
         return removed
 
     # ---- outputs -----------------------------------------------------------------------------
-    def _world_points(self, which: str, cache: tuple | None) -> tuple[tuple, np.ndarray]:
+    def _world_points(
+        self, which: str, cache: tuple | None, min_frame: int = 0
+    ) -> tuple[tuple, np.ndarray]:
         key = (
             self.anchors_version,
-            *((f, getattr(s, which).version) for f, s in self.states.items()),
+            min_frame,
+            *((f, getattr(s, which).version) for f, s in self.states.items() if f >= min_frame),
         )
         if cache is not None and cache[0] == key:
             return cache
         parts = [
             transform_points(self.topo.anchor(f), getattr(s, which).points.astype(np.float64))
             for f, s in self.states.items()
-            if len(getattr(s, which))
+            if f >= min_frame and len(getattr(s, which))
         ]
         pts = np.concatenate(parts).astype(np.float32) if parts else np.zeros((0, 3), np.float32)
         return key, pts
 
-    def obstacle_points_world(self) -> np.ndarray:
-        """(N, 3) float32 OBSTACLE points of all local frames, world coordinates through the
-        current anchors (one point per ``stores.obstacle_voxel`` voxel per frame)."""
-        self._obst_cache = self._world_points("obstacles", self._obst_cache)
+    def obstacle_points_world(self, min_frame: int = 0) -> np.ndarray:
+        """(N, 3) float32 OBSTACLE points of the local frames with id >= ``min_frame`` (0: all),
+        world coordinates through the current anchors (one point per ``stores.obstacle_voxel``
+        voxel per frame)."""
+        self._obst_cache = self._world_points("obstacles", self._obst_cache, min_frame)
         return self._obst_cache[1]
 
     def floor_points_world(self) -> np.ndarray:

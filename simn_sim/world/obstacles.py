@@ -36,7 +36,8 @@ class ObstacleConfig(Config):
     shadow_edge_jump: only points of surfaces whose top edge is in view cast (contours are depth
     jumps above this, m): walls and door jambs do not. blind_shadow_depth: an obstacle point at
     the image's lower border, unless on a surface seen to be vertical, may go on towards the
-    camera beneath the view; the hidden space up to this far (m) is shadow too; 0: off."""
+    camera beneath the view; the hidden space up to this far (m) is shadow too; 0: off.
+    bump_ttl: views after which a bump's points leave the models; 0: never."""
 
     collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
     rebuild_every: int = 20
@@ -44,6 +45,9 @@ class ObstacleConfig(Config):
     shadow_range: float = 1.5
     shadow_edge_jump: float = 0.15
     blind_shadow_depth: float = 0.6
+    # a bump's arc of points is dropped from the models after this many views (a bump at a
+    # door jamb otherwise closes the doorway for good); 0: kept for the episode
+    bump_ttl: int = 300
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -59,6 +63,7 @@ class ObstacleConfig(Config):
             )
         require(self.shadow_range > 0, n, "shadow_range", "must be > 0")
         require(self.shadow_edge_jump > 0, n, "shadow_edge_jump", "must be > 0")
+        require(self.bump_ttl >= 0, n, "bump_ttl", "must be >= 0 (0: kept)")
 
 
 class ObstacleMap:
@@ -75,8 +80,13 @@ class ObstacleMap:
         self._shadow_map = CollisionChecker(c) if self.shadow is not None else None
         self._shadow_dirty = False  # shadow cells were cleared since the shadow model was built
         self.bump_points: list[np.ndarray] = []
+        self._bump_views: list[int] = []  # the view count when each bump was added
         self._views = 0  # views integrated (the rebuild schedule)
         self._anchors_version = 0  # of the local frames at the last rebuild
+        # local frames with a lower id are left out of the models (:meth:`forget`)
+        self.min_frame = 0
+        self._forgot = False  # rebuild at the next view
+        self.clears = 0
 
     # ---- obstacles ---------------------------------------------------------------------------
     def add(self, points: np.ndarray) -> None:
@@ -87,7 +97,13 @@ class ObstacleMap:
             self.safety.update(points, lab)
 
     def rebuild(self, obstacle_points: np.ndarray) -> None:
-        """Both models anew from ``obstacle_points`` plus the bump points."""
+        """Both models anew from ``obstacle_points`` plus the bump points (those older than
+        ``bump_ttl`` views dropped first)."""
+        ttl = self.cfg.bump_ttl
+        if ttl > 0 and self._bump_views and self._views - self._bump_views[0] >= ttl:
+            keep = [k for k, v in enumerate(self._bump_views) if self._views - v < ttl]
+            self.bump_points = [self.bump_points[k] for k in keep]
+            self._bump_views = [self._bump_views[k] for k in keep]
         self.planning.reset()
         self.safety.reset()
         pts = (
@@ -97,6 +113,18 @@ class ObstacleMap:
         )
         self.add(pts)
 
+    def forget(self, min_frame: int) -> None:
+        """Clear the map, as a recovery (the clear-costmap recovery of ROS navigation): from the
+        next view on, the models hold only the obstacle points of the local frames with id >=
+        ``min_frame``; bump points are dropped. Old frames stay in the topological map (for
+        tracking and revisits) and their floor stays known; what they held as obstacles is
+        seen again, by the frames that see it next. For a map whose old frames disagree (a
+        doorway closed by a copy of its jamb from a frame anchored a few cm off)."""
+        self.min_frame = max(self.min_frame, int(min_frame))
+        self.bump_points, self._bump_views = [], []
+        self._forgot = True
+        self.clears += 1
+
     def add_bump(self, T_world_base: np.ndarray, robot_radius: float, angle: float = 0.0) -> None:
         """An obstacle at the hull that the camera cannot see: an arc of points 80 deg wide
         centred on ``angle`` (rad, base frame: 0 is straight ahead)."""
@@ -105,6 +133,7 @@ class ObstacleMap:
         local = np.c_[r * np.cos(a), r * np.sin(a), np.full_like(a, 0.3)]
         pts = transform_points(T_world_base, local)
         self.bump_points.append(pts)
+        self._bump_views.append(self._views)
         self.add(pts)
 
     # ---- shadows -----------------------------------------------------------------------------
@@ -181,9 +210,10 @@ class ObstacleMap:
         frames' stores (which drop points seen through: no ghosts)."""
         new_shadow = self.observe_shadow(obstacle_points, T_wc, base_xy, depth, intr, pixels)
         moved = frames.anchors_version != self._anchors_version
-        if moved or self._views % self.cfg.rebuild_every == 0:
+        if moved or self._forgot or self._views % self.cfg.rebuild_every == 0:
             self._anchors_version = frames.anchors_version
-            self.rebuild(frames.obstacle_points_world())
+            self._forgot = False
+            self.rebuild(frames.obstacle_points_world(self.min_frame))
         else:
             self.add(obstacle_points)
         self.add_shadow(new_shadow)
