@@ -220,6 +220,7 @@ class SimnOfficeEnv(gym.Env):
             self.free_space,
             self.cfg.n_people,
             np.random.default_rng(self.np_random.integers(2**63)),
+            yield_to_robot=self.cfg.people_yield,
         )
         self._place_people()
         mujoco.mj_forward(self.model, self.data)
@@ -296,7 +297,7 @@ class SimnOfficeEnv(gym.Env):
             mujoco.mj_step(self.model, self.data)
             collided |= self._hull_in_contact()
         if self._people.pos.shape[0]:
-            self._people.advance(self.dt)
+            self._people.advance(self.dt, self._pose2d()[:2])
             self._place_people()
         # after mj_step the body and camera poses in ``data`` are those of the state before the
         # last integration; recompute them so the image is rendered at the pose ``info`` reports

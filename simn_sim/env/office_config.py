@@ -81,6 +81,9 @@ class EnvConfig(Config):
     max_geodesic: float = 14.0
     start_clearance: float = 0.15  # sampled starts/goals keep this margin beyond the robot radius
     n_people: int = 0  # moving people (the dynamic office)
+    # people stop while the robot is in their way (and pick another target after 3 s of
+    # waiting); False: they walk through the robot's position (env/people.py)
+    people_yield: bool = True
     segmentation: bool = False  # also render the segmentation (info['segmentation'])
 
     def __post_init__(self) -> None:

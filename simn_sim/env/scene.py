@@ -18,6 +18,7 @@ from simn_sim.env.layout import Layout
 from simn_sim.paths import assets_dir
 
 ROBOT_RADIUS = 0.25
+PERSON_RADIUS = 0.22  # the people's capsules (the dynamic office)
 ROBOT_Z_BAND = (0.03, 0.95)  # vertical extent of the robot hull (m): footprints use this band
 ROBOT_GROUP = 3  # geom group of the robot's own geoms (hidden from its camera)
 PEOPLE_GROUP = 4
@@ -133,7 +134,7 @@ def build_scene(
         body.add_geom(
             name=f"person{k}_body",
             type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-            size=[0.22, 0.6],
+            size=[PERSON_RADIUS, 0.6],
             pos=[0.0, 0.0, 0.85],
             rgba=[0.85, 0.65, 0.55, 1.0],
             contype=1,
