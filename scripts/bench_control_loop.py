@@ -8,9 +8,16 @@ step, the share of steps over the control period (100 ms at 10 Hz), the breakdow
 mapping, planning on the steps that plan) and the ratio of the mean to the control period and to
 the odometry-only ablation measured in the same run. ``--sensing`` (default ``ideal``, as the
 timings in docs/navigation.md were measured) picks the env's sensing condition; ``--odom-noise``
-overrides its odometry drift.
+overrides its odometry drift. ``--episode-ids`` picks episodes by id, ``--max-steps`` cuts
+each episode short, ``--stages`` adds the per-stage self times of the SLAM front-end (as
+``scripts/bench_learned_tracking.py``: perception, k-NN and network of tracking, LM, map
+insertion, k-NN and optimiser of training, the rest of ``SimnSlam.process``), ms per step, and
+the rest of ``act()`` (collision model, topological map, planning, control).
 
     MUJOCO_GL=egl .venv/bin/python scripts/bench_control_loop.py --episodes 4 --out F.json
+    MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python scripts/bench_control_loop.py \\
+        --episode-file envs/episodes/office_nav_v2.json --episode-ids nav2-L2-005 \\
+        --sensing realistic --stages --configs "simn (slam, default)" "simn, learned tracking (fast)"
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -34,10 +42,21 @@ from simn_sim.paths import envs_dir  # noqa: E402
 from simn_sim.slam.config import SlamConfig  # noqa: E402
 
 
+def _learned_before_cuts() -> dict:
+    """``SlamConfig.for_learned_agent`` as it was before its cost cuts (docs/tracking.md): the
+    k-NN searched at every LM evaluation, 2500 random registration points, 3 rejected LM steps
+    before a minimum is declared."""
+    d = SlamConfig.for_learned_agent(
+        implicit_reuse_neighbors=0.0, max_track_points=2500, track_point_selection="random"
+    ).to_dict()
+    d["track_registration"]["max_rejects"] = 3
+    return d
+
+
 def _learned_exact() -> dict:
     """Tracking on the learned map as before its fast path: the network at every LM
     iteration, the agent's training schedule in the step (scripts/bench_learned_tracking.py)."""
-    d = SlamConfig.for_learned_agent().to_dict()
+    d = _learned_before_cuts()
     d.update(
         implicit_cache_voxel=0.0,
         train_async=False,
@@ -58,6 +77,7 @@ CONFIGS = {
     # worker thread in chunks), and the exact path (docs/tracking.md)
     "simn, learned tracking (fast)": {"slam": SlamConfig.for_learned_agent().to_dict()},
     "simn, learned tracking (exact)": {"slam": _learned_exact()},
+    "simn, learned tracking (fast, before cuts)": {"slam": _learned_before_cuts()},
 }
 
 
@@ -75,14 +95,25 @@ def _stats(x: list[float]) -> dict[str, float]:
     }
 
 
-def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dict:
+def run(
+    agent_cfg: dict,
+    episodes: list,
+    env_cfg: dict,
+    period_ms: float,
+    max_steps: int = 0,
+    timer=None,
+    name: str = "",
+) -> dict:
     env = gym.make("SimnOffice-v0", config=env_cfg)
     act, env_ms, track, mapping, plan = [], [], [], [], []
-    outcomes, train_wait = [], []
+    outcomes, train_wait, n_steps = [], [], 0
+    if timer is not None:
+        timer.config = name
     for ep in episodes:
         obs, info = env.reset(seed=ep.seed, options={"episode": ep.to_dict()})
         agent = make_agent("simn", env.unwrapped, agent_cfg)
         agent.reset(obs, info)
+        steps = 0
         while True:
             t = time.perf_counter()
             a = agent.act(obs)
@@ -94,16 +125,26 @@ def run(agent_cfg: dict, episodes: list, env_cfg: dict, period_ms: float) -> dic
             t = time.perf_counter()
             obs, _, term, trunc, info = env.step(a)
             env_ms.append((time.perf_counter() - t) * 1e3)
-            if term or trunc:
-                outcomes.append(info["episode"]["termination"])
+            steps += 1
+            if term or trunc or (max_steps > 0 and steps >= max_steps):
+                outcomes.append(info["episode"]["termination"] if term or trunc else "cut")
                 break
+        n_steps += steps
         slam = getattr(getattr(agent, "world", None), "slam", None)
         if slam is not None and slam.trainer is not None:  # training on the worker thread
             train_wait.append(slam.trainer.wait_ms / max(slam.n_frames, 1))
             slam.close()
     env.close()
     a = np.asarray(act)
+    stages = None
+    if timer is not None:
+        stages = {k: 1e3 * timer.total[name].get(k, 0.0) / max(n_steps, 1) for k in timer.names}
+        slam_ms = sum(v for k, v in stages.items() if k not in timer.threaded)
+        stages["rest of act (collision model, topo map, planning, control)"] = (
+            float(a.mean()) - slam_ms
+        )
     return {
+        "stages_ms_per_step": stages,
         "act_ms": _stats(act),
         "over_period_share": float(np.mean(a > period_ms)),
         "track_ms": _stats(track),
@@ -126,8 +167,31 @@ def main() -> int:
     ap.add_argument("--odom-noise", type=float, default=None, help="override the odometry drift")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--episode-ids", nargs="+", default=None, help="these episodes (by id)")
+    ap.add_argument("--max-steps", type=int, default=0, help="cut each episode after N steps")
+    ap.add_argument("--stages", action="store_true", help="per-stage self times of the front-end")
     a = ap.parse_args()
+    import torch
+
+    torch.set_num_threads(1)  # as the agent's SLAM sets it (SlamConfig.torch_threads)
+    timer = None
+    if a.stages:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench_learned_tracking import STAGES, StageTimer
+
+        from simn_sim.slam.trainer import TrainWorker
+
+        timer = StageTimer()
+        timer.install()
+        # the next step waiting for the worker's training (train_async), inside process()
+        timer.wrap(TrainWorker, "join", "training wait")
+        timer.names = (*STAGES, "training wait")
+        # stages on the training worker thread (train_async): not inside act()
+        timer.threaded = ("kNN, training", "training (optimiser)")
     eps = EpisodeSet.load(a.episode_file).episodes
+    if a.episode_ids:
+        by_id = {e.episode_id: e for e in eps}
+        eps = [by_id[i] for i in a.episode_ids]
     by_layout: dict = {}
     for e in eps:
         by_layout.setdefault(e.layout_seed, []).append(e)
@@ -149,7 +213,7 @@ def main() -> int:
         "configs": {},
     }
     for name in a.configs:
-        res["configs"][name] = run(CONFIGS[name], picked, env_cfg, period)
+        res["configs"][name] = run(CONFIGS[name], picked, env_cfg, period, a.max_steps, timer, name)
         r = res["configs"][name]
         s = r["act_ms"]
         print(
@@ -158,6 +222,14 @@ def main() -> int:
             f"{100 * r['over_period_share']:.2f} %; env step mean {r['env_step_ms']['mean']:.1f} ms",
             flush=True,
         )
+        if r["stages_ms_per_step"]:
+            tw = r["train_wait_ms_per_step"]
+            print(
+                "  stages ms/step: "
+                + ", ".join(f"{k} {v:.1f}" for k, v in r["stages_ms_per_step"].items())
+                + (f"; training wait {tw:.1f}" if tw is not None else ""),
+                flush=True,
+            )
     res["load_avg_end"] = os.getloadavg()
     cf = res["configs"]
     base = cf.get("simn, odometry pose (ablation)", {}).get("act_ms", {}).get("mean")

@@ -73,7 +73,12 @@ def configs() -> dict[str, tuple[SlamConfig, dict]]:
     """name -> (config, k-NN switches of NeuralPointMap while it runs)."""
     fast = SlamConfig.for_learned_agent(train_async=False)
     tr = fast.mapper.training.replace(max_pending=20_000)
+    # as before the fast path and the registration cuts of for_learned_agent (docs/tracking.md)
     exact = fast.replace(
+        implicit_reuse_neighbors=0.0,
+        max_track_points=2500,
+        track_point_selection="random",
+        track_registration=fast.track_registration.replace(max_rejects=3),
         implicit_cache_voxel=0.0,
         open_train_iters=60,
         train_iters=15,

@@ -177,3 +177,76 @@ def test_training_on_the_worker_thread_gives_the_synchronous_poses():
         assert slam.n_track_failures <= 1
     assert jobs == [0, len(frames)]
     np.testing.assert_array_equal(trajs[0], trajs[1])
+
+
+def test_reused_neighbour_tables_equal_a_fresh_query():
+    """TrackingSdf with ``reuse_distance``: within it the neighbours of the last k-NN search
+    and their gathered tables are reused (no search, no gather), and the SDF and gradient equal
+    ``ImplicitMap.query`` given the neighbours of an exact k-NN search at the search points
+    (tables gathered afresh); beyond it, or after a training (features changed, no point
+    added), it searches and gathers again."""
+    m, T_true, pts = _mapped_office(train_iters=5)
+    X = torch.from_numpy((pts @ T_true[:3, :3].T + T_true[:3, 3]).astype(np.float32))
+    tsdf = m.tracking_sdf(0.005, None)
+    tsdf.sdf_and_grad(X)
+    assert tsdf.searches == 1
+    idx0, _ = m.points.knn(X)  # the exact KD-tree neighbours at the search points
+    X2 = X + torch.tensor([0.002, -0.002, 0.001])  # 3 mm: reused
+    s2, g2 = tsdf.sdf_and_grad(X2)
+    assert tsdf.searches == 1 and tsdf.evaluations == 2
+    ref = m.query(X2, with_grad=True, neighbors=idx0)
+    torch.testing.assert_close(s2, ref.sdf, rtol=0, atol=0, equal_nan=True)
+    torch.testing.assert_close(g2, ref.grad, rtol=0, atol=0, equal_nan=True)
+    X3 = X + torch.tensor([0.006, 0.0, 0.0])  # 6 mm: searched again, exact neighbours
+    s3, _ = tsdf.sdf_and_grad(X3)
+    assert tsdf.searches == 2
+    ref3 = m.query(X3, with_grad=True)  # the map's own k-NN at X3
+    torch.testing.assert_close(s3, ref3.sdf, rtol=0, atol=0, equal_nan=True)
+    # a training changes the features, not the points: the tables are gathered again
+    rng = np.random.default_rng(1)
+    m.integrate_frame(render_points(office_scene(), T_true, 5000, rng), T_true, train=False)
+    tsdf.sdf_and_grad(X3)
+    n_search = tsdf.searches
+    m.train(3)
+    s4, g4 = tsdf.sdf_and_grad(X3)
+    assert tsdf.searches == n_search + 1
+    ref4 = m.query(X3, with_grad=True)
+    torch.testing.assert_close(s4, ref4.sdf, rtol=0, atol=0, equal_nan=True)
+    torch.testing.assert_close(g4, ref4.grad, rtol=0, atol=0, equal_nan=True)
+    assert not torch.equal(torch.nan_to_num(s4), torch.nan_to_num(s3))  # the training did change it
+
+
+def test_normal_space_selection_spreads_the_points_over_the_normal_directions():
+    """``track_point_selection: normals``: registration points round robin over the normal
+    bins, so a bin with fewer points than its share keeps them all (here a wall facing along
+    the corridor of 10 voxels among 1000), the same points for the same seed; ``random`` (the
+    agent's) draws as before."""
+    from simn_sim.geometry.voxel import voxel_mean
+    from simn_sim.slam import SlamConfig
+    from simn_sim.slam.track import Tracker
+
+    # one point per 6 cm voxel: floor (normal z) 900, side wall (x) 90, end wall (y) 10
+    g = np.stack(np.meshgrid(np.arange(30), np.arange(30), indexing="ij"), -1).reshape(-1, 2)
+    floor = np.c_[g * 0.06 + 0.03, np.full(900, 1.03)]
+    side = np.c_[
+        np.full(90, 0.03), (np.arange(90) % 30) * 0.06 + 0.03, (np.arange(90) // 30) * 0.06 + 1.21
+    ]
+    end = np.c_[(np.arange(10) * 0.06 + 0.03), np.full(10, 2.43), np.full(10, 1.51)]
+    pts = np.concatenate([floor, side, end]).astype(np.float32)
+    nrm = np.repeat(np.eye(3)[[2, 0, 1]], [900, 90, 10], axis=0).astype(np.float32)
+    assert len(voxel_mean(pts, 0.06)[0]) == 1000
+    picks = []
+    for _ in range(2):
+        cfg = SlamConfig.for_agent(max_track_points=100, track_point_selection="normals")
+        tr = Tracker(cfg, None, np.random.default_rng(5))
+        tp = tr.track_points(pts, nrm)
+        assert len(tp) == 100
+        kind = np.where(tp[:, 2] < 1.1, 0, np.where(np.abs(tp[:, 0] - 0.03) < 1e-4, 1, 2))
+        kind[(tp[:, 1] > 2.4)] = 2
+        assert np.bincount(kind, minlength=3).tolist() == [45, 45, 10]
+        picks.append(tp)
+    np.testing.assert_array_equal(picks[0], picks[1])
+    cfg = SlamConfig.for_agent(max_track_points=100)
+    tr = Tracker(cfg, None, np.random.default_rng(5))
+    ref = voxel_mean(pts, 0.06)[0][np.random.default_rng(5).choice(1000, 100, replace=False)]
+    np.testing.assert_array_equal(tr.track_points(pts, nrm), ref.astype(np.float32))

@@ -372,6 +372,7 @@ class ImplicitMap:
                     break
         with torch.no_grad():
             self.points.features[active] = feat.detach()
+        self.points.version += 1
         self.n_trainings += 1
         Xnv, Snv, Knv = X[~old], S[~old], K[~old]
         if tc.use_replay:
@@ -454,6 +455,7 @@ class ImplicitMap:
         points: np.ndarray | torch.Tensor,
         with_grad: bool = False,
         neighbors: torch.Tensor | None = None,
+        tables: tuple[torch.Tensor, ...] | None = None,
     ) -> SdfQuery:
         """SDF (and gradient) at (N, 3) map-frame points, batched.
 
@@ -461,6 +463,9 @@ class ImplicitMap:
         gradient are NaN and ``valid`` is False. Returns numpy for numpy input, torch otherwise.
         ``neighbors``: (N, k) neural-point indices to use instead of a k-NN search (as
         returned by ``self.points.knn``; :class:`TrackingSdf` reuses them across iterations).
+        ``tables``: with ``neighbors``, their neighbour tables as :meth:`_gather` returns them
+        for all N rows, gathered at the map's current state (a row whose ``neighbors`` are all
+        -1 is invalid whatever its tables hold).
         """
         is_np = isinstance(points, np.ndarray)
         x_all = _as_float_points(points).to(self.device, torch.float32)
@@ -481,7 +486,10 @@ class ImplicitMap:
             x, idx = x[ok], idx[ok]
             sl = torch.arange(s, s + ok.shape[0], device=self.device)[ok]
             valid[sl] = True
-            nb = self._gather(idx)
+            if tables is None:
+                nb = self._gather(idx)
+            else:
+                nb = tuple(t[s : s + step][ok] for t in tables)
             if with_grad:
                 with torch.enable_grad():
                     xg = x.detach().clone().requires_grad_(True)

@@ -97,6 +97,9 @@ class NeuralPointMap:
         self.plane_count = torch.empty((0,), dtype=torch.float32, device=d)
         self._plane_cache: tuple[torch.Tensor, torch.Tensor] | None = None
         self._trees: _TreeIndex | None = None
+        # bumped by every change of the points' tables (positions, features, colours, planes):
+        # tables gathered at one version stay valid while it holds (TrackingSdf reuses them)
+        self.version = 0
         self._rebuild_index()
 
     # ------------------------------------------------------------------ storage
@@ -170,6 +173,7 @@ class NeuralPointMap:
         self.normal_sum.index_add_(0, ids, normals[ok][hit])
         self.plane_count.index_add_(0, ids, torch.ones_like(ids, dtype=torch.float32))
         self._plane_cache = None
+        self.version += 1
 
     def planes(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Per neural point the mean observed surface point (N, 3) and the unit mean normal
@@ -233,6 +237,7 @@ class NeuralPointMap:
         self.normal_sum = torch.cat([self.normal_sum, z3])
         self.plane_count = torch.cat([self.plane_count, z3[:, 0]])
         self._plane_cache = None
+        self.version += 1
         self._rebuild_index()
         return torch.arange(start, start + m, device=self.device)
 
@@ -266,6 +271,7 @@ class NeuralPointMap:
             raise ValueError("inconsistent surface-plane arrays")
         self.plane_sum, self.normal_sum, self.plane_count = ps, ns, pc
         self._plane_cache = None
+        self.version += 1
         self._rebuild_index()
 
     def snapshot(self) -> FeaturePoints:

@@ -118,6 +118,9 @@ class SlamConfig(Config):
     perception: PerceptionConfig = PerceptionConfig(map_normal_smooth_px=1)
     track_voxel: float = 0.06
     max_track_points: int = 4000
+    # which of the voxels' points register when there are more than max_track_points: "random"
+    # (a uniform subset) or "normals" (spread evenly over the normal directions, Tracker)
+    track_point_selection: Literal["random", "normals"] = "random"
     # mapping: the first observation of a frame trains ``open_train_iters`` (so the next frame
     # can register against it); afterwards every ``train_every``-th frame ``train_iters``.
     train_every: int = 5
@@ -385,8 +388,12 @@ class SlamConfig(Config):
         :meth:`for_learned_tracking` (k-NN by KD-trees), training on a worker thread
         (``train_async``) in short chunks every frame (6 iterations when a
         frame opens, then 3 per frame on at most 4096 new samples: the agent's 15 per 5 frames
-        without a long step every 5th frame). Not the agent's default (docs/tracking.md,
-        "Tracking on the learned map")."""
+        without a long step every 5th frame). Registration (tracking and revisit checks): 1500
+        points spread over the normal directions, each point's k neighbours and their tables
+        reused while it moved less than 5 mm (:class:`~simn_sim.mapping.tracking_sdf.TrackingSdf`);
+        in tracking one rejected LM step ends the registration (the point store's preset: 2500
+        random points, 3 rejections). Not the agent's default (docs/tracking.md, "Tracking on
+        the learned map")."""
         d = cls.for_agent().to_dict()
         lt = cls.for_learned_tracking().to_dict()
         m = lt["mapper"]
@@ -394,11 +401,14 @@ class SlamConfig(Config):
         d.update(
             map_kind="implicit",
             track_sdf="implicit",
-            implicit_reuse_neighbors=lt["implicit_reuse_neighbors"],
+            implicit_reuse_neighbors=0.005,
             implicit_max_dist=lt["implicit_max_dist"],
+            max_track_points=1500,
+            track_point_selection="normals",
             track_registration={
                 **d["track_registration"],
                 "grad_norm_min": lt["track_registration"]["grad_norm_min"],
+                "max_rejects": 1,
             },
             mapper=m,
             train_async=True,

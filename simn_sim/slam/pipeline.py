@@ -192,7 +192,7 @@ class SimnSlam:
         prior = None if T_world_cam_prior is None else check_pose(T_world_cam_prior, "prior")
         # perceive
         frame = self.perception(rgb, depth)
-        track_pts = tr.track_points(frame.points)
+        track_pts = tr.track_points(frame.points, frame.normals)
         self.sync()  # the previous frame's training (train_async), before the map is read
         # track
         first = self.n_frames == 0

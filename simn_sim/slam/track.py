@@ -62,16 +62,46 @@ class Tracker:
         self.caches: dict[int, SdfCache] = {}
 
     # ---- points ------------------------------------------------------------------------------
-    def track_points(self, pts: np.ndarray) -> np.ndarray:
+    def track_points(self, pts: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
         """Registration points: up to ``track_max_depth``, one per ``track_voxel`` voxel, at most
-        ``max_track_points`` (a random subset from the tracker's generator)."""
-        pts = pts[pts[:, 2] <= self.cfg.track_max_depth]
+        ``max_track_points``: a random subset from the tracker's generator, or with
+        ``track_point_selection: normals`` (and ``normals``, camera frame, NaN: unknown) spread
+        evenly over the directions of the voxels' mean normals (normal-space sampling: the few
+        points facing along a corridor are kept, which constrain motion along it)."""
+        keep = pts[:, 2] <= self.cfg.track_max_depth
+        pts = pts[keep]
         if len(pts) == 0:
             return pts
+        m = self.cfg.max_track_points
+        if self.cfg.track_point_selection == "normals" and normals is not None:
+            nrm = np.nan_to_num(normals[keep].astype(np.float32), nan=0.0)
+            tp, nv, _ = voxel_mean(pts, self.cfg.track_voxel, nrm)
+            if len(tp) > m:
+                tp = tp[self._normal_space(nv, m)]
+            return tp.astype(np.float32)
         tp, _, _ = voxel_mean(pts, self.cfg.track_voxel)
-        if len(tp) > self.cfg.max_track_points:
-            tp = tp[self.rng.choice(len(tp), self.cfg.max_track_points, replace=False)]
+        if len(tp) > m:
+            tp = tp[self.rng.choice(len(tp), m, replace=False)]
         return tp.astype(np.float32)
+
+    def _normal_space(self, nv: np.ndarray, m: int) -> np.ndarray:
+        """Indices of ``m`` of the points with (mean) normals ``nv`` (zero rows: unknown): the
+        normals binned on a 5 x 5 x 5 grid of the unit cube (unknown: a bin of their own),
+        then round robin over the bins in a random order within each (the tracker's
+        generator), so a bin holding fewer than its share keeps all its points."""
+        n = np.linalg.norm(nv, axis=1, keepdims=True)
+        u = np.where(n > 0.5, nv / np.maximum(n, 1e-9), 0.0)
+        cell = np.clip(np.round(u * 2.0).astype(np.int64) + 2, 0, 4)
+        b = np.where(n[:, 0] > 0.5, cell[:, 0] * 25 + cell[:, 1] * 5 + cell[:, 2], 125)
+        perm = self.rng.permutation(len(b))
+        bp = b[perm]
+        order = np.argsort(bp, kind="stable")  # points of each bin, in the random order
+        sb = bp[order]
+        start = np.searchsorted(sb, sb, side="left")
+        rank = np.empty(len(b), np.int64)
+        rank[order] = np.arange(len(b)) - start  # rank within its bin
+        pick = np.argsort(rank, kind="stable")[:m]  # round robin over the bins
+        return np.sort(perm[pick])
 
     def point_weights(self, pts: np.ndarray) -> np.ndarray | None:
         """Inverse depth-noise variance of each point relative to a point at zero range,
