@@ -78,6 +78,16 @@ def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, wor
     assert set(agent.counters()) >= {"plan_failures", "fallback_plans", "bumps", "local_frames"}
 
 
+def test_agent_slam_preset_learned_agent_is_for_learned_agent_with_changes(env):
+    from simn_sim.slam.config import SlamConfig
+
+    agent = make_agent("simn", env.unwrapped, {"slam": {"preset": "learned_agent", "seed": 7}})
+    assert agent.cfg.slam == SlamConfig.for_learned_agent(seed=7)
+    assert make_agent("simn", env.unwrapped, {}).cfg.slam == SlamConfig.for_agent()
+    with pytest.raises(ConfigError, match="unknown preset 'learnd'"):
+        make_agent("simn", env.unwrapped, {"slam": {"preset": "learnd"}})
+
+
 def test_bad_agent_config_is_rejected(env):
     with pytest.raises(ConfigError, match="rebuild_every"):
         make_agent("simn", env.unwrapped, {"obstacles": {"rebuild_every": 0}})
@@ -274,6 +284,7 @@ def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
     [
         ({}, "points"),
         ({"slam": {"map_kind": "implicit", "track_sdf": "implicit"}}, "learned"),
+        ({"slam": {"preset": "learned_agent"}}, "learned"),
         ({"pose_source": "odometry"}, None),
     ],
 )

@@ -49,7 +49,7 @@ from simn_sim.planning.costmap import CostMap, CostMapConfig
 from simn_sim.planning.gridpath import grid_shortest_path
 from simn_sim.planning.smoothing import push_from_obstacles, shortcut_path
 from simn_sim.semantics import OBSTACLE
-from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.config import SlamConfig, slam_config_from_preset
 from simn_sim.world import ObstacleConfig, WorldModel, make_world
 
 # Keys of SimnAgentConfig before the world-model redesign and where they are now.
@@ -78,7 +78,8 @@ class SimnAgentConfig(Config):
     # (ablation: wheel odometry, same perception, stores and obstacle view)
     pose_source: Literal["slam", "odometry"] = "slam"
     # the front-end's config; a mapping given here changes the agent preset
-    # (SlamConfig.for_agent: 10 Hz at 320x240 on a CPU) only in the keys it names
+    # (SlamConfig.for_agent: 10 Hz at 320x240 on a CPU) only in the keys it names;
+    # {preset: learned_agent, ...} starts from SlamConfig.for_learned_agent (the learned map)
     slam: SlamConfig = dataclasses.field(default_factory=SlamConfig.for_agent)
     obstacles: ObstacleConfig = ObstacleConfig()
     # iteration budget only (no wall-clock budget): the same seed gives the same plans
@@ -150,7 +151,7 @@ class SimnAgentConfig(Config):
             where = "; ".join(f"'{k}' -> {MOVED_KEYS[k]}" for k in moved)
             raise ConfigError(f"SimnAgentConfig: key(s) moved: {where}")
         if isinstance(data.get("slam"), dict):
-            data["slam"] = SlamConfig.for_agent(**data["slam"])
+            data["slam"] = slam_config_from_preset(data["slam"], default="agent")
         elif data.get("slam") is None:
             data.pop("slam", None)
         return super().from_dict(data)

@@ -450,9 +450,9 @@ class SlamConfig(Config):
 def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
     """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults.
 
-    A top-level ``preset: learned_tracking`` (:meth:`SlamConfig.for_learned_tracking`) or
-    ``preset: agent`` (:meth:`SlamConfig.for_agent`) starts from that preset; the other keys
-    then change it (a nested mapping only the keys it names)."""
+    A top-level ``preset`` (``agent``, ``learned_agent``, ``learned_tracking``:
+    :func:`slam_config_from_preset`) starts from that preset; the other keys then change it (a
+    nested mapping only the keys it names)."""
     data: dict[str, Any] = {}
     if path is not None:
         p = Path(path)
@@ -468,10 +468,23 @@ def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
             raise ConfigError(f"{p}: expected a mapping at the top level")
         data = loaded
     data.update(overrides)
-    preset = data.pop("preset", None)
+    return slam_config_from_preset(data, default=None)
+
+
+def slam_config_from_preset(data: dict[str, Any], default: str | None) -> SlamConfig:
+    """A :class:`SlamConfig` from a mapping whose ``preset`` key (else ``default``; None: the
+    plain defaults) names the preset the other keys change: ``agent``
+    (:meth:`SlamConfig.for_agent`), ``learned_agent`` (:meth:`SlamConfig.for_learned_agent`) or
+    ``learned_tracking`` (:meth:`SlamConfig.for_learned_tracking`)."""
+    data = dict(data)
+    preset = data.pop("preset", default)
     if preset is None:
         return SlamConfig.from_dict(data)
-    presets = {"learned_tracking": SlamConfig.for_learned_tracking, "agent": SlamConfig.for_agent}
+    presets = {
+        "agent": SlamConfig.for_agent,
+        "learned_agent": SlamConfig.for_learned_agent,
+        "learned_tracking": SlamConfig.for_learned_tracking,
+    }
     if preset not in presets:
         raise ConfigError(
             f"SlamConfig.preset: unknown preset {preset!r} (one of {sorted(presets)})"
@@ -487,5 +500,6 @@ __all__ = [
     "SlamConfig",
     "TrainingConfig",
     "load_slam_config",
+    "slam_config_from_preset",
     "tracking_mapper_config",
 ]
