@@ -49,7 +49,8 @@ from simn_sim.planning.costmap import CostMap, CostMapConfig
 from simn_sim.planning.gridpath import grid_shortest_path
 from simn_sim.planning.smoothing import push_from_obstacles, shortcut_path
 from simn_sim.semantics import OBSTACLE
-from simn_sim.slam.config import SlamConfig, slam_config_from_preset
+from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.presets import slam_config_from_preset
 from simn_sim.world import ObstacleConfig, WorldModel, make_world
 
 # Keys of SimnAgentConfig before the world-model redesign and where they are now.
@@ -436,9 +437,7 @@ class SimnAgent:
             sq = CollisionChecker(
                 c.replace(robot_radius=c.robot_radius - self.cfg.squeeze, margin=0.0)
             )
-            pts = self.world.frames.obstacle_points_world(self.obstacles.min_frame)
-            if self.obstacles.bump_points:
-                pts = np.concatenate([pts, *self.obstacles.bump_points])
+            pts = self.obstacles.model_points(self.world.frames)
             if len(pts):
                 sq.update(pts, np.full(len(pts), OBSTACLE, np.int8))
         else:

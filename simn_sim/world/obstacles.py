@@ -96,9 +96,15 @@ class ObstacleMap:
             self.planning.update(points, lab)
             self.safety.update(points, lab)
 
-    def rebuild(self, obstacle_points: np.ndarray) -> None:
-        """Both models anew from ``obstacle_points`` plus the bump points (those older than
-        ``bump_ttl`` views dropped first)."""
+    def model_points(self, frames: LocalFrames) -> np.ndarray:
+        """(N, 3) the points the models are built from: the obstacle points of the local frames
+        from ``min_frame`` on (world coordinates) plus the bump points."""
+        pts = frames.obstacle_points_world(self.min_frame)
+        return np.concatenate([pts, *self.bump_points]) if self.bump_points else pts
+
+    def rebuild(self, frames: LocalFrames) -> None:
+        """Both models anew from :meth:`model_points` (bumps older than ``bump_ttl`` views
+        dropped first)."""
         ttl = self.cfg.bump_ttl
         if ttl > 0 and self._bump_views and self._views - self._bump_views[0] >= ttl:
             keep = [k for k, v in enumerate(self._bump_views) if self._views - v < ttl]
@@ -106,12 +112,7 @@ class ObstacleMap:
             self._bump_views = [self._bump_views[k] for k in keep]
         self.planning.reset()
         self.safety.reset()
-        pts = (
-            np.concatenate([obstacle_points, *self.bump_points])
-            if self.bump_points
-            else obstacle_points
-        )
-        self.add(pts)
+        self.add(self.model_points(frames))
 
     def forget(self, min_frame: int) -> None:
         """Clear the map, as a recovery (the clear-costmap recovery of ROS navigation): from the
@@ -213,7 +214,7 @@ class ObstacleMap:
         if moved or self._forgot or self._views % self.cfg.rebuild_every == 0:
             self._anchors_version = frames.anchors_version
             self._forgot = False
-            self.rebuild(frames.obstacle_points_world(self.min_frame))
+            self.rebuild(frames)
         else:
             self.add(obstacle_points)
         self.add_shadow(new_shadow)
