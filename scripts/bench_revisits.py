@@ -45,7 +45,7 @@ from simn_sim.eval.trajectory import ate_rpe  # noqa: E402
 from simn_sim.geometry.se3 import transform_points  # noqa: E402
 from simn_sim.io.tum import read_tum  # noqa: E402
 from simn_sim.slam import SimnSlam  # noqa: E402
-from simn_sim.slam.config import load_slam_config  # noqa: E402
+from simn_sim.slam.presets import load_slam_config  # noqa: E402
 from simn_sim.slam.record import read_base, read_odometry, record_sequence  # noqa: E402
 from simn_sim.slam.revisit import RANKINGS  # noqa: E402
 

@@ -29,8 +29,8 @@ import numpy as np
 
 from simn_sim.geometry.se3 import inv_T, pose_error, se3_exp
 from simn_sim.io.tum import read_tum
-from simn_sim.slam.config import load_slam_config
 from simn_sim.slam.pipeline import SimnSlam
+from simn_sim.slam.presets import load_slam_config
 from simn_sim.slam.record import read_base
 from simn_sim.tracking.registration import register
 

@@ -139,7 +139,7 @@ def test_learned_map_tracking_preset_meets_the_desk_target(desk):
 
 def test_yaml_preset_selects_learned_tracking(tmp_path):
     from simn_sim.config import ConfigError
-    from simn_sim.slam.config import load_slam_config
+    from simn_sim.slam.presets import load_slam_config
 
     f = tmp_path / "slam.yaml"
     f.write_text("preset: learned_tracking\ntrack_max_depth: 3.0\nmapper: {seed: 5}\n")

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from simn_sim.config import ConfigError
-from simn_sim.slam.config import SlamConfig, load_slam_config
+from simn_sim.slam.config import SlamConfig
+from simn_sim.slam.presets import load_slam_config
 from simn_sim.slam.record import read_base, read_odometry, record_main
 
 __all__ = ["record_main", "run_slam", "slam_main"]

@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 from typing import Any, Literal
-
-import yaml
 
 from simn_sim.config import Config, ConfigError, require
 from simn_sim.mapping.config import (
@@ -447,51 +444,6 @@ class SlamConfig(Config):
         return cls.from_dict(_merge(d, changes))
 
 
-def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
-    """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults.
-
-    A top-level ``preset`` (``agent``, ``learned_agent``, ``learned_tracking``:
-    :func:`slam_config_from_preset`) starts from that preset; the other keys then change it (a
-    nested mapping only the keys it names)."""
-    data: dict[str, Any] = {}
-    if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"config file {p} does not exist")
-        try:
-            loaded = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as e:
-            raise ConfigError(f"{p}: not valid YAML ({e})") from None
-        if loaded is None:
-            loaded = {}
-        if not isinstance(loaded, dict):
-            raise ConfigError(f"{p}: expected a mapping at the top level")
-        data = loaded
-    data.update(overrides)
-    return slam_config_from_preset(data, default=None)
-
-
-def slam_config_from_preset(data: dict[str, Any], default: str | None) -> SlamConfig:
-    """A :class:`SlamConfig` from a mapping whose ``preset`` key (else ``default``; None: the
-    plain defaults) names the preset the other keys change: ``agent``
-    (:meth:`SlamConfig.for_agent`), ``learned_agent`` (:meth:`SlamConfig.for_learned_agent`) or
-    ``learned_tracking`` (:meth:`SlamConfig.for_learned_tracking`)."""
-    data = dict(data)
-    preset = data.pop("preset", default)
-    if preset is None:
-        return SlamConfig.from_dict(data)
-    presets = {
-        "agent": SlamConfig.for_agent,
-        "learned_agent": SlamConfig.for_learned_agent,
-        "learned_tracking": SlamConfig.for_learned_tracking,
-    }
-    if preset not in presets:
-        raise ConfigError(
-            f"SlamConfig.preset: unknown preset {preset!r} (one of {sorted(presets)})"
-        )
-    return presets[preset](**data)
-
-
 __all__ = [
     "MOVED_KEYS",
     "StoreConfig",
@@ -499,7 +451,5 @@ __all__ = [
     "NeuralPointsConfig",
     "SlamConfig",
     "TrainingConfig",
-    "load_slam_config",
-    "slam_config_from_preset",
     "tracking_mapper_config",
 ]

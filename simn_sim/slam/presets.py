@@ -1,0 +1,61 @@
+"""SLAM configs from presets: :meth:`SlamConfig.for_agent` (``agent``),
+:meth:`SlamConfig.for_learned_agent` (``learned_agent``) and
+:meth:`SlamConfig.for_learned_tracking` (``learned_tracking``), changed by the other keys of a
+mapping or a YAML file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from simn_sim.config import ConfigError
+from simn_sim.slam.config import SlamConfig
+
+__all__ = ["load_slam_config", "slam_config_from_preset"]
+
+
+def load_slam_config(path: str | Path | None, **overrides: Any) -> SlamConfig:
+    """A :class:`SlamConfig` from a YAML file (nested mappings per component), or defaults.
+
+    A top-level ``preset`` (``agent``, ``learned_agent``, ``learned_tracking``:
+    :func:`slam_config_from_preset`) starts from that preset; the other keys then change it (a
+    nested mapping only the keys it names)."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"config file {p} does not exist")
+        try:
+            loaded = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as e:
+            raise ConfigError(f"{p}: not valid YAML ({e})") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{p}: expected a mapping at the top level")
+        data = loaded
+    data.update(overrides)
+    return slam_config_from_preset(data, default=None)
+
+
+def slam_config_from_preset(data: dict[str, Any], default: str | None) -> SlamConfig:
+    """A :class:`SlamConfig` from a mapping whose ``preset`` key (else ``default``; None: the
+    plain defaults) names the preset the other keys change: ``agent``
+    (:meth:`SlamConfig.for_agent`), ``learned_agent`` (:meth:`SlamConfig.for_learned_agent`) or
+    ``learned_tracking`` (:meth:`SlamConfig.for_learned_tracking`)."""
+    data = dict(data)
+    preset = data.pop("preset", default)
+    if preset is None:
+        return SlamConfig.from_dict(data)
+    presets = {
+        "agent": SlamConfig.for_agent,
+        "learned_agent": SlamConfig.for_learned_agent,
+        "learned_tracking": SlamConfig.for_learned_tracking,
+    }
+    if preset not in presets:
+        raise ConfigError(
+            f"SlamConfig.preset: unknown preset {preset!r} (one of {sorted(presets)})"
+        )
+    return presets[preset](**data)
