@@ -8,7 +8,7 @@ step, what its world model saw (rgb, depth, odometry) with the true base pose, p
 ``SimnSlam.process`` per step exactly as ``SlamWorld.update`` calls it from
 :class:`~simn_sim.agents.simn.SimnAgent`; the odometry pose source's pose is the odometry) for the
 odometry pose source and the SLAM front-end with one or more :class:`SlamConfig` variants
-(``SlamConfig.for_agent(**changes)``), and report the ATE: RMSE of the estimated base x-y
+(``SlamConfig.for_points_agent(**changes)``), and report the ATE: RMSE of the estimated base x-y
 against the true one, both in the episode start frame, each estimate paired with the true pose
 of the observation it was made from. ``lagged`` pairs it with the next step's true pose, as
 ``experiments.runner`` did before it was fixed.
@@ -19,7 +19,7 @@ of the observation it was made from. ``lagged`` pairs it with the next step's tr
         --variant base '{}' --variant w '{"depth_sigma_per_m2": 0.0026}'
 
 A variant's JSON may name its preset with a ``"preset"`` key: ``"agent"`` (the default,
-``SlamConfig.for_agent``: the point store) or ``"learned"`` (``SlamConfig.for_learned_agent``:
+``SlamConfig.for_points_agent``: the point store) or ``"learned"`` (``SlamConfig.for_agent``:
 tracking on the learned map, training on the worker thread); ``--preset`` sets it for the
 variants that do not. Points vs learned on the realistic sequences, with the odometry:
 
@@ -133,15 +133,15 @@ PRESETS = ("agent", "learned")
 
 
 def slam_config(changes: dict[str, Any], preset: str = "agent"):
-    """``SlamConfig.for_agent(**changes)`` or, with preset ``learned`` (or a ``"preset"`` key in
-    ``changes``), ``SlamConfig.for_learned_agent(**changes)``."""
+    """``SlamConfig.for_points_agent(**changes)`` or, with preset ``learned`` (or a ``"preset"`` key in
+    ``changes``), ``SlamConfig.for_agent(**changes)``."""
     from simn_sim.slam.config import SlamConfig
 
     changes = dict(changes)
     preset = changes.pop("preset", preset)
     if preset not in PRESETS:
         raise SystemExit(f"unknown preset {preset!r} (one of {PRESETS})")
-    make = SlamConfig.for_learned_agent if preset == "learned" else SlamConfig.for_agent
+    make = SlamConfig.for_agent if preset == "learned" else SlamConfig.for_points_agent
     return make(**changes)
 
 
@@ -258,7 +258,7 @@ def main() -> int:
         nargs=2,
         action="append",
         metavar=("NAME", "JSON"),
-        help="SlamConfig.for_agent changes (repeatable; default: the preset as is)",
+        help="SlamConfig.for_points_agent changes (repeatable; default: the preset as is)",
     )
     p.add_argument("--odometry", action="store_true", help="also the odometry pose source")
     p.add_argument(

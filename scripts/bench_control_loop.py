@@ -17,7 +17,7 @@ the rest of ``act()`` (collision model, topological map, planning, control).
     MUJOCO_GL=egl .venv/bin/python scripts/bench_control_loop.py --episodes 4 --out F.json
     MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python scripts/bench_control_loop.py \\
         --episode-file envs/episodes/office_nav_v2.json --episode-ids nav2-L2-005 \\
-        --sensing realistic --stages --configs "simn (slam, default)" "simn, learned tracking (fast)"
+        --sensing realistic --stages --configs "simn (learned map, default)" "simn, point store (ablation)"
 """
 
 from __future__ import annotations
@@ -43,10 +43,10 @@ from simn_sim.slam.config import SlamConfig  # noqa: E402
 
 
 def _learned_before_cuts() -> dict:
-    """``SlamConfig.for_learned_agent`` as it was before its cost cuts (docs/tracking.md): the
+    """``SlamConfig.for_agent`` as it was before its cost cuts (docs/tracking.md): the
     k-NN searched at every LM evaluation, 2500 random registration points, 3 rejected LM steps
     before a minimum is declared."""
-    d = SlamConfig.for_learned_agent(
+    d = SlamConfig.for_agent(
         implicit_reuse_neighbors=0.0, max_track_points=2500, track_point_selection="random"
     ).to_dict()
     d["track_registration"]["max_rejects"] = 3
@@ -69,15 +69,18 @@ def _learned_exact() -> dict:
 
 
 CONFIGS = {
-    "simn (slam, default)": {},
+    # the default agent: the paper's learned map per local frame, tracked against
+    # (SlamConfig.for_agent: training on a worker thread in chunks, docs/tracking.md)
+    "simn (learned map, default)": {},
+    # the point-store ablation (agent simn_points): no learning, nearest-point-plane SDF
+    "simn, point store (ablation)": {"slam": {"preset": "points_agent"}},
     "simn, odometry pose (ablation)": {"pose_source": "odometry"},
-    # the paper's learned neural implicit map per local frame, trained in the loop
-    "simn, learned implicit map": {"slam": {"map_kind": "implicit"}},
-    # tracking on the learned map: SlamConfig.for_learned_agent (SDF cache, training on a
-    # worker thread in chunks), and the exact path (docs/tracking.md)
-    "simn, learned tracking (fast)": {"slam": SlamConfig.for_learned_agent().to_dict()},
+    # the learned map trained in the loop but tracking on the point store
+    "simn, point tracking + learned map": {
+        "slam": {"preset": "points_agent", "map_kind": "implicit"}
+    },
     "simn, learned tracking (exact)": {"slam": _learned_exact()},
-    "simn, learned tracking (fast, before cuts)": {"slam": _learned_before_cuts()},
+    "simn, learned tracking (before cuts)": {"slam": _learned_before_cuts()},
 }
 
 

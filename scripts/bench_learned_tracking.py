@@ -2,13 +2,13 @@
 point store, frame by frame in one process (the frames of the configs interleaved, so a change
 of the machine's load hits all of them alike).
 
-Configs (all at the agent's 320x240 settings, ``SlamConfig.for_agent``):
+Configs (all at the agent's 320x240 settings, ``SlamConfig.for_points_agent``):
 
 * ``points``: the agent's default (surface point store, no learning);
 * ``learned, exact``: the implementation before the fast path: the network at every LM
   iteration (``implicit_cache_voxel: 0``), k-NN on the single 15 cm bucket grid, the agent's
   training schedule (60 iterations when a frame opens, 15 every 5th frame) run in the step;
-* ``learned, fast``: ``SlamConfig.for_learned_agent`` (KD-tree k-NN, training in chunks of 3
+* ``learned, fast``: ``SlamConfig.for_agent`` (KD-tree k-NN, training in chunks of 3
   iterations per frame), here with the training run in the step (``train_async: false``) so
   that its cost is measured; in the loop it runs on a worker thread
   (``scripts/bench_control_loop.py`` measures that);
@@ -71,9 +71,9 @@ STAGES = (
 
 def configs() -> dict[str, tuple[SlamConfig, dict]]:
     """name -> (config, k-NN switches of NeuralPointMap while it runs)."""
-    fast = SlamConfig.for_learned_agent(train_async=False)
+    fast = SlamConfig.for_agent(train_async=False)
     tr = fast.mapper.training.replace(max_pending=20_000)
-    # as before the fast path and the registration cuts of for_learned_agent (docs/tracking.md)
+    # as before the fast path and the registration cuts of for_agent (docs/tracking.md)
     exact = fast.replace(
         implicit_reuse_neighbors=0.0,
         max_track_points=2500,
@@ -86,7 +86,7 @@ def configs() -> dict[str, tuple[SlamConfig, dict]]:
         mapper=fast.mapper.replace(training=tr),
     )
     return {
-        "points": (SlamConfig.for_agent(), {}),
+        "points": (SlamConfig.for_points_agent(), {}),
         "learned, exact": (exact, {"use_trees": False, "fine_grid": False}),
         "learned, fast": (fast, {}),
         "learned, fast + SDF cache": (fast.replace(implicit_cache_voxel=0.02), {}),

@@ -78,14 +78,27 @@ def test_each_world_model_feeds_the_same_planner_interface(env, pose_source, wor
     assert set(agent.counters()) >= {"plan_failures", "fallback_plans", "bumps", "local_frames"}
 
 
-def test_agent_slam_preset_learned_agent_is_for_learned_agent_with_changes(env):
+def test_agent_slam_presets_learned_default_and_points_ablation(env):
     from simn_sim.slam.config import SlamConfig
 
-    agent = make_agent("simn", env.unwrapped, {"slam": {"preset": "learned_agent", "seed": 7}})
-    assert agent.cfg.slam == SlamConfig.for_learned_agent(seed=7)
-    assert make_agent("simn", env.unwrapped, {}).cfg.slam == SlamConfig.for_agent()
+    # the paper's method is the default: each local frame's map is learned and tracked against
+    default = make_agent("simn", env.unwrapped, {}).cfg.slam
+    assert default == SlamConfig.for_agent()
+    assert default.map_kind == "implicit" and default.track_sdf == "implicit"
+    agent = make_agent("simn", env.unwrapped, {"slam": {"seed": 7}})
+    assert agent.cfg.slam == SlamConfig.for_agent(seed=7)
+    # the point-store ablation: a preset, or the agent simn_points (same changes accepted)
+    agent = make_agent("simn", env.unwrapped, {"slam": {"preset": "points_agent", "seed": 7}})
+    assert agent.cfg.slam == SlamConfig.for_points_agent(seed=7)
+    assert agent.cfg.slam.map_kind == "points" and agent.cfg.slam.track_sdf == "points"
+    pts = make_agent("simn_points", env.unwrapped, {"slam": {"seed": 7}})
+    assert pts.name == "simn_points" and pts.cfg.slam == SlamConfig.for_points_agent(seed=7)
+    with pytest.raises(ConfigError, match="simn_points: slam.preset"):
+        make_agent("simn_points", env.unwrapped, {"slam": {"preset": "agent"}})
     with pytest.raises(ConfigError, match="unknown preset 'learnd'"):
         make_agent("simn", env.unwrapped, {"slam": {"preset": "learnd"}})
+    with pytest.raises(ConfigError, match="'learned_agent' was renamed"):
+        make_agent("simn", env.unwrapped, {"slam": {"preset": "learned_agent"}})
 
 
 def test_bad_agent_config_is_rejected(env):
@@ -282,9 +295,9 @@ def test_blind_zone_shadow_covers_the_part_of_a_low_box_below_the_view(blind):
 @pytest.mark.parametrize(
     "agent_cfg,expected",
     [
-        ({}, "points"),
-        ({"slam": {"map_kind": "implicit", "track_sdf": "implicit"}}, "learned"),
-        ({"slam": {"preset": "learned_agent"}}, "learned"),
+        ({}, "learned"),
+        ({"slam": {"preset": "points_agent"}}, "points"),
+        ({"slam": {"map_kind": "points", "track_sdf": "points"}}, "points"),
         ({"pose_source": "odometry"}, None),
     ],
 )
@@ -302,9 +315,15 @@ def test_episode_record_has_act_timing_and_tracking_map():
         "SimnOffice-v0", {"width": 160, "height": 120, "max_episode_steps": 5}, "simn", {}, seed=3
     )
     assert rec["error"] is None, rec["error"]
-    assert rec["steps"] == 5 and rec["tracking_map"] == "points"
+    assert rec["steps"] == 5 and rec["tracking_map"] == "learned"
     assert 0 < rec["act_ms_mean"] <= rec["act_ms_p95"] * 5
     assert rec["act_ms_p95"] > 0
+    rec = run_episode(
+        "SimnOffice-v0", {"width": 160, "height": 120, "max_episode_steps": 5}, "simn_points", {},
+        seed=3,
+    )  # fmt: skip
+    assert rec["error"] is None and rec["agent"] == "simn_points"
+    assert rec["tracking_map"] == "points"
 
 
 def test_episode_ate_pairs_each_estimate_with_the_pose_it_was_made_at():

@@ -164,7 +164,7 @@ def test_training_on_the_worker_thread_gives_the_synchronous_poses():
     frames = [scene.render_depth(intr, T) for T in poses]
     trajs, jobs = [], []
     for async_ in (False, True):
-        cfg = SlamConfig.for_learned_agent(
+        cfg = SlamConfig.for_agent(
             train_async=async_, semantics=False, open_train_iters=3, train_iters=2
         )
         slam = SimnSlam(cfg, intr)
@@ -246,7 +246,7 @@ def test_normal_space_selection_spreads_the_points_over_the_normal_directions():
         assert np.bincount(kind, minlength=3).tolist() == [45, 45, 10]
         picks.append(tp)
     np.testing.assert_array_equal(picks[0], picks[1])
-    cfg = SlamConfig.for_agent(max_track_points=100)
+    cfg = SlamConfig.for_points_agent(max_track_points=100)  # random selection
     tr = Tracker(cfg, None, np.random.default_rng(5))
     ref = voxel_mean(pts, 0.06)[0][np.random.default_rng(5).choice(1000, 100, replace=False)]
     np.testing.assert_array_equal(tr.track_points(pts, nrm), ref.astype(np.float32))

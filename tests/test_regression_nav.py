@@ -45,9 +45,10 @@ class Gate:
 AGENTS: dict[str, Gate] = {
     "oracle": Gate(),
     # deterministic on one machine (iteration-budget planners, seeded noise): per-episode rules
-    "simn": Gate(),
+    "simn": Gate(),  # the learned map (the default)
+    "simn_points": Gate(),  # the point-store ablation
 }
-SLOW_AGENTS = {"simn"}  # ~45-90 s on 2 cores: run in CI's slow step
+SLOW_AGENTS = {"simn", "simn_points"}  # ~1-5 min each on 2 cores: run in CI's slow step
 
 
 def regressions(base: list[dict[str, Any]], new: list[dict[str, Any]], gate: Gate) -> list[str]:
@@ -75,7 +76,9 @@ def regressions(base: list[dict[str, Any]], new: list[dict[str, Any]], gate: Gat
 
 
 #: (set, agent) pairs gated; regression_real_v1 is realistic sensing at 320x240 (slow)
-CASES = [("regression_v1", a) for a in sorted(AGENTS)] + [("regression_real_v1", "simn")]
+CASES = [("regression_v1", a) for a in sorted(AGENTS)] + [
+    ("regression_real_v1", a) for a in sorted(SLOW_AGENTS)
+]
 
 
 @pytest.mark.parametrize(

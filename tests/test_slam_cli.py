@@ -39,7 +39,7 @@ def test_record_writes_tum_layout(seq):
 
 def test_slam_cli_outputs(seq, tmp_path):
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("map_kind: points\ntrigger:\n  max_travel_m: 0.1\n")
+    cfg.write_text("preset: point_tracking\nmap_kind: points\ntrigger:\n  max_travel_m: 0.1\n")
     out = tmp_path / "out"
     rc = slam_main(
         ["--tum", str(seq), "--out", str(out), "--config", str(cfg), "--no-progress", "--rerun"]
@@ -59,13 +59,24 @@ def test_slam_cli_outputs(seq, tmp_path):
     assert (out / "slam.rrd").stat().st_size > 1000
 
 
+def test_slam_cli_tracks_on_the_learned_map_by_default(seq, tmp_path):
+    out = tmp_path / "out"
+    rc = slam_main(["--tum", str(seq), "--out", str(out), "--max-frames", "4", "--no-progress"])
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["tracking_map"] == "learned"
+    c = json.loads((out / "config.json").read_text())
+    assert c["map_kind"] == "implicit" and c["track_sdf"] == "implicit"
+    assert m["frames"] == 4 and 0 <= m["ate_rmse_m"] < 0.01
+
+
 def test_slam_cli_max_frames_without_groundtruth(seq, tmp_path):
     src = tmp_path / "nogt"
     shutil.copytree(seq, src)
     (src / "groundtruth.txt").unlink()
     out = tmp_path / "out"
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("map_kind: points\n")
+    cfg.write_text("preset: point_tracking\nmap_kind: points\n")
     rc = slam_main(
         ["--tum", str(src), "--out", str(out), "--max-frames", "3", "--config", str(cfg),
          "--no-progress"]
@@ -82,7 +93,8 @@ def test_slam_cli_saves_the_learned_maps_with_one_shared_decoder(seq, tmp_path):
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(
-        "map_kind: implicit\nopen_train_iters: 5\ntrain_iters: 5\ntrigger:\n  max_travel_m: 0.05\n"
+        "preset: point_tracking\nmap_kind: implicit\nopen_train_iters: 5\ntrain_iters: 5\n"
+        "trigger:\n  max_travel_m: 0.05\n"
     )
     out = tmp_path / "out"
     rc = slam_main(
@@ -130,7 +142,7 @@ def test_slam_cli_real_tum_clip(tmp_path):
     # docs/tracking.md gets 2.5 mm. 1 cm fails a tracker that only follows the prior (~1.2 cm
     # per frame of motion in this clip).
     cfg = tmp_path / "c.yaml"
-    cfg.write_text("map_kind: points\n")
+    cfg.write_text("preset: point_tracking\nmap_kind: points\n")
     out = tmp_path / "out"
     rc = slam_main(
         ["--tum", str(TUM9), "--camera", "fr1", "--out", str(out), "--config", str(cfg),

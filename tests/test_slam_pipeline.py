@@ -146,7 +146,16 @@ def test_yaml_preset_selects_learned_tracking(tmp_path):
     cfg = load_slam_config(f)
     assert cfg.track_sdf == "implicit" and cfg.track_max_depth == 3.0
     assert cfg.mapper.decoder.geometric_prior and cfg.mapper.seed == 5
-    assert load_slam_config(None).track_sdf == "points"  # the default is unchanged
+    assert load_slam_config(None).track_sdf == "points"  # the plain SlamConfig defaults
+    # simn-sim slam's default: the learned map; a file without a preset changes that one,
+    # 'point_tracking' names the plain defaults
+    assert load_slam_config(None, default_preset="learned_tracking").track_sdf == "implicit"
+    f.write_text("track_max_depth: 3.0\n")
+    cfg = load_slam_config(f, default_preset="learned_tracking")
+    assert cfg.track_sdf == "implicit" and cfg.track_max_depth == 3.0
+    f.write_text("preset: point_tracking\ntrack_max_depth: 3.0\n")
+    cfg = load_slam_config(f, default_preset="learned_tracking")
+    assert cfg == SlamConfig(track_max_depth=3.0)
     # a nested mapping changes only the keys it names, at every depth: the preset's decoder
     # (geometric prior, normal gate) and points (Gaussian weights) survive one changed key
     f.write_text(
@@ -194,8 +203,8 @@ def test_free_space_carving_removes_stale_obstacles():
         assert (np.linalg.norm(slam.obstacle_points_world()[:, :2], axis=1) > 2.5).sum() > 20
 
 
-def test_agent_preset_runs_cheaply(desk):
-    cfg = SlamConfig.for_agent()
+def test_points_agent_preset_runs_cheaply(desk):
+    cfg = SlamConfig.for_points_agent()
     assert cfg.map_kind == "points" and cfg.max_track_points <= 2500
     slam, outs, gt = _run(desk, cfg, n=10)
     assert all(o.success for o in outs[1:])

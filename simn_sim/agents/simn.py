@@ -79,8 +79,9 @@ class SimnAgentConfig(Config):
     # (ablation: wheel odometry, same perception, stores and obstacle view)
     pose_source: Literal["slam", "odometry"] = "slam"
     # the front-end's config; a mapping given here changes the agent preset
-    # (SlamConfig.for_agent: 10 Hz at 320x240 on a CPU) only in the keys it names;
-    # {preset: learned_agent, ...} starts from SlamConfig.for_learned_agent (the learned map)
+    # (SlamConfig.for_agent: the learned map at 320x240 on a CPU) only in the keys it names;
+    # {preset: points_agent, ...} starts from SlamConfig.for_points_agent (the point-store
+    # ablation, also the agent ``simn_points``)
     slam: SlamConfig = dataclasses.field(default_factory=SlamConfig.for_agent)
     obstacles: ObstacleConfig = ObstacleConfig()
     # iteration budget only (no wall-clock budget): the same seed gives the same plans
@@ -648,9 +649,27 @@ def _make_simn(env: Any, config: dict[str, Any]) -> SimnAgent:
     return SimnAgent(env, config, name="simn")
 
 
+def _make_simn_points(env: Any, config: dict[str, Any]) -> SimnAgent:
+    """The point-store ablation: ``simn`` with each local frame's map a surface point store
+    (:meth:`SlamConfig.for_points_agent`) instead of the learned map; a ``slam`` mapping in
+    ``config`` changes that preset."""
+    cfg = dict(config)
+    slam = cfg.get("slam")
+    if slam is not None and not isinstance(slam, dict):
+        raise ConfigError("simn_points: 'slam' must be a mapping of SlamConfig changes")
+    slam = dict(slam or {})
+    if slam.get("preset", "points_agent") != "points_agent":
+        raise ConfigError(
+            f"simn_points: slam.preset is 'points_agent' for this agent, got {slam['preset']!r}"
+        )
+    cfg["slam"] = {**slam, "preset": "points_agent"}
+    return SimnAgent(env, cfg, name="simn_points")
+
+
 def _make_rrtstar(env: Any, config: dict[str, Any]) -> SimnAgent:
     return SimnAgent(env, {"planner": "uniform", **config}, name="rrtstar")
 
 
 register_agent("simn", _make_simn)
+register_agent("simn_points", _make_simn_points)
 register_agent("rrtstar", _make_rrtstar)

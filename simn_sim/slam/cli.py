@@ -187,7 +187,13 @@ def slam_main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--rerun", action="store_true", help="also write OUT/slam.rrd")
     ap.add_argument("--max-frames", type=int, default=None)
-    ap.add_argument("--config", type=Path, default=None, help="SlamConfig YAML")
+    ap.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="SlamConfig YAML; without a top-level 'preset' it changes the learned_tracking "
+        "preset (tracking on the learned map); 'preset: point_tracking' tracks on the point store",
+    )
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument(
         "--save-maps",
@@ -203,7 +209,7 @@ def slam_main(argv: list[str] | None = None) -> int:
         print("simn-sim slam: error: --max-frames must be >= 1", file=sys.stderr)
         return 2
     try:
-        cfg = load_slam_config(a.config)
+        cfg = load_slam_config(a.config, default_preset="learned_tracking")
         m = run_slam(
             a.tum, a.out, a.camera, cfg, a.max_frames, a.rerun, not a.no_progress,
             not a.no_odometry, a.save_maps,

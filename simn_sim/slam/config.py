@@ -2,7 +2,8 @@
 
 One frozen dataclass holding the per-component configs it composes (mapper, registration,
 local-frame trigger, loop closure, pose graph, floor classifier) plus the pipeline's own knobs.
-``SlamConfig.for_agent()`` is the cheap preset for closed-loop navigation (10 Hz, 320x240).
+``SlamConfig.for_agent()`` is the closed-loop agent's preset (the learned map, 320x240);
+``SlamConfig.for_points_agent()`` its point-store ablation.
 """
 
 from __future__ import annotations
@@ -380,18 +381,21 @@ class SlamConfig(Config):
         return cls.from_dict(_merge(d, changes))
 
     @classmethod
-    def for_learned_agent(cls, **changes: Any) -> SlamConfig:
-        """:meth:`for_agent` tracking on the learned map, at the loop's cost: the settings of
-        :meth:`for_learned_tracking` (k-NN by KD-trees), training on a worker thread
+    def for_agent(cls, **changes: Any) -> SlamConfig:
+        """The closed-loop agent's front-end (the ``simn`` default, preset ``agent``): the
+        paper's method, each local frame's map the learned implicit map, tracked against,
+        at the loop's cost. :meth:`for_points_agent` (perception, classifier, revisit budget)
+        with the settings of :meth:`for_learned_tracking` (k-NN by KD-trees), training on a
+        worker thread
         (``train_async``) in short chunks every frame (6 iterations when a
         frame opens, then 3 per frame on at most 4096 new samples: the agent's 15 per 5 frames
         without a long step every 5th frame). Registration (tracking and revisit checks): 1500
         points spread over the normal directions, each point's k neighbours and their tables
         reused while it moved less than 5 mm (:class:`~simn_sim.mapping.tracking_sdf.TrackingSdf`);
         in tracking one rejected LM step ends the registration (the point store's preset: 2500
-        random points, 3 rejections). Not the agent's default (docs/tracking.md, "Tracking on
-        the learned map")."""
-        d = cls.for_agent().to_dict()
+        random points, 3 rejections). Cost and accuracy against the point store: docs/tracking.md
+        ("Tracking on the learned map") and docs/navigation.md."""
+        d = cls.for_points_agent().to_dict()
         lt = cls.for_learned_tracking().to_dict()
         m = lt["mapper"]
         m["training"] = {**m["training"], "batch_size": 2048, "max_pending": 4096}
@@ -416,9 +420,11 @@ class SlamConfig(Config):
         return cls.from_dict(_merge(d, changes))
 
     @classmethod
-    def for_agent(cls, **changes: Any) -> SlamConfig:
-        """The cheap preset for the closed-loop agent (10 Hz, 320x240 frames): fewer
-        registration points and shorter training bursts."""
+    def for_points_agent(cls, **changes: Any) -> SlamConfig:
+        """The point-store ablation of the closed-loop agent (agent ``simn_points``, preset
+        ``points_agent``): each local frame's map is a surface voxel store whose SDF is the
+        nearest point's plane (no learning); fewer registration points and shorter training
+        bursts than the offline defaults (10 Hz at 320x240 frames on a CPU)."""
         base = cls()
         tr = dataclasses.replace(base.mapper.training, batch_size=2048)
         # stereo depth noise grows with range^2: the floor band widens with range and far
