@@ -223,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument(
         "--env", default=None, help="env id (default: the episode file's, else SimnOffice-v0)"
     )
-    d.add_argument("--agent", default=None, help="simn (default), rrtstar or oracle")
+    d.add_argument("--agent", default=None, help="simn (default), simn_points, rrtstar or oracle")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--episode-file", default=None)
     d.add_argument("--episode-index", type=int, default=0)
