@@ -39,6 +39,11 @@ class Agent(Protocol):
         tracking failures, revisits, ...); the runner copies them into the episode record."""
         ...
 
+    def close(self) -> None:
+        """Optional: release per-episode resources (threads); the runner calls it, when the
+        agent has it, after every episode, failed ones included."""
+        ...
+
 
 _REGISTRY: dict[str, Callable[..., Agent]] = {}
 

@@ -219,10 +219,17 @@ class SimnAgent:
         return self.cfg.to_dict()
 
     # ---- episode ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Release the world model's resources (its training thread); the runner calls it
+        when an episode ends, :meth:`reset` before a new one. Idempotent."""
+        if self.world is not None:
+            self.world.close()
+
     def reset(self, obs: dict, info: dict) -> None:
         cam = info["camera"]
         T_base_cam = np.asarray(cam.T_base_cam, float)
         self.rng = np.random.default_rng(self.cfg.seed)
+        self.close()  # the previous episode's world model
         self.world = make_world(
             self.cfg.pose_source, self.cfg.slam, self.cfg.obstacles, cam.intrinsics, T_base_cam
         )

@@ -102,6 +102,7 @@ def run_episode(
     t0 = time.perf_counter()
     own_env = env is None
     recorder = None
+    agent = None
     try:
         if own_env:
             env = gym.make(env_id, config=env_cfg_d)
@@ -178,6 +179,14 @@ def run_episode(
         rec["termination"] = "error"
     finally:
         rec["wall_time_s"] = time.perf_counter() - t0
+        close = getattr(agent, "close", None)
+        if close is not None:
+            try:
+                close()
+            except Exception as e:  # noqa: BLE001 - recorded; the record is kept
+                if rec.get("error") is None:
+                    rec["error"] = f"agent.close: {type(e).__name__}: {e}"
+                    rec["termination"] = "error"
         if recorder is not None:
             recorder.close()
         if own_env and env is not None:

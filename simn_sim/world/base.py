@@ -49,6 +49,10 @@ class WorldModel(Protocol):
         """(4, 4) latest estimated base pose ``T_world_base`` (agent frame)."""
         ...
 
+    def close(self) -> None:
+        """Release what outlives a call (the learned map's training thread); idempotent."""
+        ...
+
     @property
     def frames(self) -> LocalFrames:
         """The local frames, their point stores and carving."""

@@ -72,6 +72,9 @@ class OdometryWorld:
     def pose(self) -> np.ndarray:
         return self._pose
 
+    def close(self) -> None:
+        """Nothing to release (no training thread)."""
+
     @property
     def topology(self) -> TopoMap:
         return self.frames.topo
