@@ -40,7 +40,8 @@ def test_trap_episode_reaches_the_goal_within_1_5x_the_geodesic(agent, eid):
     straight line at the goal ends farther from it: a closed region), realistic sensing,
     320x240. The default (the learned map) on nav2-L4-009 (1.19x in the main run); the point
     store on nav2-ref-009 (1.12x). The learned map does not reach nav2-ref-009 (a timeout after
-    2 collision events, 38 m driven, docs/navigation.md), which is why the default is gated on another trap."""
+    2 collision events, 38 m driven; docs/navigation.md), so the default is gated on another
+    trap."""
     ep = _episode(eid)
     layout = load_layout(ep.layout_seed)
     fs = FreeSpace2D(
