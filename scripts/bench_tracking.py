@@ -67,6 +67,16 @@ def _rigid(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def _prior_increment(odom, prev_t, t, T_prev, T_prev2) -> np.ndarray:
+    """The prior's motion from the previous frame to this one (camera frame): the wheel-odometry
+    increment, else constant velocity from the last two poses, else none (identity)."""
+    if odom is not None:
+        return inv_T(odom[round(prev_t, 6)]) @ odom[round(t, 6)]
+    if T_prev2 is not None:
+        return inv_T(T_prev) @ constant_velocity_prior(T_prev2, T_prev)
+    return np.eye(4)
+
+
 def run_open3d(
     seq, odom=None, max_depth: float = 6.0, max_correction_m: float = 0.3
 ) -> tuple[list, list[float], int]:
@@ -93,12 +103,7 @@ def run_open3d(
         if prev_rgbd is None:
             T = np.eye(4)
         else:
-            if odom is not None:
-                init = inv_T(odom[round(prev_t, 6)]) @ odom[round(fr.timestamp, 6)]
-            elif T_prev2 is not None:
-                init = inv_T(T_prev) @ constant_velocity_prior(T_prev2, T_prev)
-            else:
-                init = np.eye(4)
+            init = _prior_increment(odom, prev_t, fr.timestamp, T_prev, T_prev2)
             ok, T_rel, _ = o3d.pipelines.odometry.compute_rgbd_odometry(
                 rgbd, prev_rgbd, intr, np.array(init, dtype=np.float64), jac, opt
             )
@@ -159,12 +164,7 @@ def run_open3d_model(
         if i == 0:
             T = np.eye(4)
         else:
-            if odom is not None:
-                init = inv_T(odom[round(prev_t, 6)]) @ odom[round(fr.timestamp, 6)]
-            elif T_prev2 is not None:
-                init = inv_T(T_prev) @ constant_velocity_prior(T_prev2, T_prev)
-            else:
-                init = np.eye(4)
+            init = _prior_increment(odom, prev_t, fr.timestamp, T_prev, T_prev2)
             T_pred = _rigid(T_prev @ init)
             model.update_frame_pose(i - 1, o3c.Tensor(T_pred))  # ray-cast from the prediction
             model.synthesize_model_frame(ray, scale, 0.1, max_depth, 8.0, False)
