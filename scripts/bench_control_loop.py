@@ -72,6 +72,9 @@ CONFIGS = {
     # the default agent: the paper's learned map per local frame, tracked against
     # (SlamConfig.for_agent: training on a worker thread in chunks, docs/tracking.md)
     "simn (learned map, default)": {},
+    # the default with the training chunk joined after the next frame's tracking (it tracks
+    # against the map before that chunk): the chunk overlaps perception and tracking too
+    "simn (learned map, training latency 1)": {"slam": {"train_latency": 1}},
     # the point-store ablation (agent simn_points): no learning, nearest-point-plane SDF
     "simn, point store (ablation)": {"slam": {"preset": "points_agent"}},
     "simn, odometry pose (ablation)": {"pose_source": "odometry"},

@@ -20,7 +20,9 @@ no SDF: NaN and ``valid = False``).
 
 from __future__ import annotations
 
+import copy
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -255,15 +257,26 @@ class ImplicitMap:
         ``max_iters``. Features of the neural points touched by the batch and the decoder
         weights are updated by Adam. Afterwards the new samples join the replay pool.
         """
+        res, apply = self.train_deferred(max_iters)
+        apply()
+        return res
+
+    def train_deferred(self, max_iters: int | None = None) -> tuple[TrainResult, Callable[[], None]]:
+        """:meth:`train` without touching what readers of the map see: the decoder is trained
+        as a copy and the touched features as a sub-table; the returned ``apply()`` writes both
+        back (and bumps ``points.version``). Between the two the map answers queries as before
+        the training, so another thread may track against it meanwhile (``train_latency`` 1);
+        nothing else may change the map until ``apply()`` ran. ``train`` is this with
+        ``apply()`` at once (the same numbers)."""
         with flush_denormals():
             return self._train(max_iters)
 
-    def _train(self, max_iters: int | None) -> TrainResult:
+    def _train(self, max_iters: int | None) -> tuple[TrainResult, Callable[[], None]]:
         tc = self.cfg.training
         t0 = time.perf_counter()
         cap = tc.max_iters if max_iters is None else int(max_iters)
         if self._n_pending == 0:
-            return TrainResult(0, False, float("nan"), 0, 0, 0.0)
+            return TrainResult(0, False, float("nan"), 0, 0, 0.0), _nothing
         Xn, Sn, Kn = (torch.cat(t) for t in zip(*self._pending, strict=True))
         self._pending, self._n_pending = [], 0
         if not self.decoder.cfg.residual:  # the geometric prior alone: nothing to learn
@@ -271,7 +284,7 @@ class ImplicitMap:
                 self.replay.add(Xn, Sn, Kn, self.generator)
             res = TrainResult(0, True, float("nan"), 0, 0, time.perf_counter() - t0)
             self.last_train = res
-            return res
+            return res, _nothing
         n_new = Xn.shape[0]
         n_prev = len(self.frame_replay) if tc.use_replay else 0  # closed frames' samples
         if tc.use_replay and len(self.replay) > 0:
@@ -288,7 +301,7 @@ class ImplicitMap:
         ok = idx[:, 0] >= 0
         X, S, K, idx, old = X[ok], S[ok], K[ok], idx[ok], old[ok]
         if X.shape[0] == 0:
-            return TrainResult(0, False, float("nan"), 0, 0, time.perf_counter() - t0)
+            return TrainResult(0, False, float("nan"), 0, 0, time.perf_counter() - t0), _nothing
         # Work on the sub-table of neural points this batch touches.
         nbv = idx >= 0
         active, local = torch.unique(idx[nbv], return_inverse=True)
@@ -299,16 +312,17 @@ class ImplicitMap:
         q_all, n_all = self.points.planes()
         nb_q, nb_n = q_all[active][lidx], n_all[active][lidx]
         feat = self.points.features[active].clone().requires_grad_(True)
+        dec = copy.deepcopy(self.decoder)  # trained aside; apply() writes it back
         opt = torch.optim.Adam(
             [
-                {"params": list(self.decoder.parameters()), "lr": tc.lr},
+                {"params": list(dec.parameters()), "lr": tc.lr},
                 {"params": [feat], "lr": tc.feature_lr},
             ]
         )
         new_ids = torch.nonzero(~old).squeeze(1)
         old_ids = torch.nonzero(old).squeeze(1)
         use_ewc = tc.use_ewc and self.ewc.active and tc.ewc_weight > 0
-        dc = self.decoder.cfg
+        dc = dec.cfg
         shrink = tc.residual_weight > 0 and dc.geometric_prior and dc.decoding == "interpolated"
         losses: list[float] = []
         converged = False
@@ -341,13 +355,13 @@ class ImplicitMap:
             inp = self._decoder_inputs(
                 x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
             )
-            pred = self.decoder(*inp)
+            pred = dec(*inp)
             label = S[bi]
             prior = inp[4] if shrink else None
             p_ne = pred[:ne]
             if nb_prev:  # closed frames' samples: their frozen decoder inputs
                 inp_p, lab_p = self.frame_replay.draw(nb_prev, self.generator)
-                pred = torch.cat([pred, self.decoder(*inp_p)])
+                pred = torch.cat([pred, dec(*inp_p)])
                 label = torch.cat([label, lab_p])
                 if shrink:
                     prior = torch.cat([prior, inp_p[4]])
@@ -358,7 +372,7 @@ class ImplicitMap:
                 (g,) = torch.autograd.grad(p_ne.sum(), xe, create_graph=True)
                 loss = loss + tc.eikonal_weight * eikonal_loss(g)
             if use_ewc:
-                loss = loss + tc.ewc_weight * self.ewc.penalty(self.decoder)
+                loss = loss + tc.ewc_weight * self.ewc.penalty(dec)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -370,9 +384,15 @@ class ImplicitMap:
                 if abs(a - b) < tc.loss_threshold:
                     converged = True
                     break
-        with torch.no_grad():
-            self.points.features[active] = feat.detach()
-        self.points.version += 1
+        feat = feat.detach()
+
+        def apply() -> None:
+            with torch.no_grad():
+                self.points.features[active] = feat
+                for p, q in zip(self.decoder.parameters(), dec.parameters(), strict=True):
+                    p.copy_(q)
+            self.points.version += 1
+
         self.n_trainings += 1
         Xnv, Snv, Knv = X[~old], S[~old], K[~old]
         if tc.use_replay:
@@ -388,7 +408,7 @@ class ImplicitMap:
             seconds=time.perf_counter() - t0,
         )
         self.last_train = res
-        return res
+        return res, apply
 
     def consolidate(self) -> None:
         """Take the diagonal Fisher of the decoder on the samples learned since the last call
@@ -581,3 +601,7 @@ class ImplicitMap:
         """Read local-frame maps written by :func:`save_frame_maps` (``{frame id: map}``); maps
         that shared a decoder share it again (see :func:`load_frame_maps`)."""
         return load_frame_maps(cls, path, device)
+
+
+def _nothing() -> None:
+    """``apply`` of a training that changed nothing."""

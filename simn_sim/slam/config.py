@@ -156,6 +156,12 @@ class SlamConfig(Config):
     # train the learned map on a worker thread while the caller plans and steps; the next
     # frame joins it before tracking (same poses as synchronous training, slam/trainer.py)
     train_async: bool = False
+    # frames a training chunk lags tracking. 0: frame t+1 joins the chunk of frame t before it
+    # tracks (tracks against the map trained on frame t). 1: frame t+1 tracks against the map as
+    # it was before that chunk (trained on frames up to t-1) and joins the chunk after
+    # tracking, so with ``train_async`` the chunk also overlaps the next frame's perception and
+    # tracking; the same poses with and without ``train_async`` either way (slam/trainer.py)
+    train_latency: int = 0
     surface_voxel: float = 0.02
     surface_keep: Literal["first", "mean"] = "mean"  # per-voxel model point: first or average
     track_max_depth: float = 4.0  # registration points up to this depth (stereo noise ~ z^2;
@@ -206,6 +212,10 @@ class SlamConfig(Config):
     # their own, wider budget: loop.max_correction_*)
     track_max_correction_m: float = 0.3
     track_max_correction_deg: float = 20.0
+    # a new local frame's map holds one observation when the next arrives: tracking registers
+    # against the previous frame's map until the new one holds this many observations (0:
+    # against the new one as soon as it has a map)
+    track_previous_until: int = 0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
     odom_sigma_rot: float = 0.005  # rad
     odom_sigma_rot_per_rad: float = 0.02
@@ -311,6 +321,7 @@ class SlamConfig(Config):
         )
         require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")
         require(self.train_every >= 1, n, "train_every", "must be >= 1")
+        require(self.train_latency in (0, 1), n, "train_latency", "must be 0 or 1")
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
         require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")
@@ -331,6 +342,7 @@ class SlamConfig(Config):
         )
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
         require(self.track_max_correction_m > 0, n, "track_max_correction_m", "must be > 0")
+        require(self.track_previous_until >= 0, n, "track_previous_until", "must be >= 0")
         require(0 <= self.weak_ratio < 1, n, "weak_ratio", "must be in [0, 1)")
         require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")
         require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")

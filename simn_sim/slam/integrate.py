@@ -88,13 +88,15 @@ def integrate(
         return False
     if train_iters:
 
-        def trained(_res, st=st, fid=fid) -> None:
+        def trained(out, st=st, fid=fid) -> None:
+            _res, apply = out
+            apply()  # the trained decoder and features, visible to readers from here on
             st.n_trained += 1
             if st.n_trained in (1, 2, 4) or st.n_trained % 8 == 0:
                 topo.refresh(fid)
 
         if trainer is None:
-            trained(m.train(train_iters))
+            trained(m.train_deferred(train_iters))
         else:
-            trainer.submit(lambda: m.train(train_iters), trained)
+            trainer.submit(lambda: m.train_deferred(train_iters), trained)
     return True

@@ -125,7 +125,12 @@ class SimnSlam:
         self.revisits = Revisits(cfg, self.frames, self.tracker)
         self.trigger = FrameTrigger(cfg.trigger)
         # training on a worker thread, joined by the next frame before it tracks
-        self.trainer = TrainWorker(cfg.torch_threads) if cfg.train_async else None
+        lag = cfg.train_latency > 0
+        self.trainer = (
+            TrainWorker(cfg.torch_threads, inline=not cfg.train_async)
+            if cfg.train_async or lag
+            else None
+        )
         self.n_frames = 0
         self.n_track_failures = 0
         self.n_map_skipped = 0  # frames the learned map rejected as empty
@@ -193,9 +198,12 @@ class SimnSlam:
         # perceive
         frame = self.perception(rgb, depth)
         track_pts = tr.track_points(frame.points, frame.normals)
-        self.sync()  # the previous frame's training (train_async), before the map is read
-        # track
         first = self.n_frames == 0
+        if self.cfg.train_latency == 0 or (not first and not tr.has_trained_target()):
+            # the previous frame's training (train_async) before the map is read; with
+            # train_latency 1 only when nothing trained could be tracked against without it
+            self.sync()
+        # track
         if first:
             T_world_cam = self._initial_pose(prior)
             frames.open(T_world_cam, t)
@@ -212,6 +220,7 @@ class SimnSlam:
         self.n_track_failures += int(not res.success)
         T_anchor_cam = res.T_anchor_cam
         track_ms = (time.perf_counter() - t0) * 1e3
+        self.sync()  # train_latency 1: the previous frame's training, joined after tracking
         # topology: local frames and revisits
         t1 = time.perf_counter()
         new_frame, revisit_fid = first, None

@@ -29,8 +29,9 @@ class TrainWorker:
     """One training job at a time on one worker thread; :meth:`join` waits for it and runs its
     completion callback on the caller's thread. ``wait_ms``: total time joins waited."""
 
-    def __init__(self, threads: int = 1) -> None:
+    def __init__(self, threads: int = 1, inline: bool = False) -> None:
         self.threads = int(threads)
+        self.inline = bool(inline)  # no thread: a job runs at join, on the caller's thread
         self._ex: ThreadPoolExecutor | None = None
         self._job: tuple[Future, Callable[[Any], None]] | None = None
         self._queued: tuple[Callable[[], Any], Callable[[Any], None]] | None = None
@@ -53,8 +54,8 @@ class TrainWorker:
         self._queued = (fn, done)
 
     def start(self) -> None:
-        """Start the queued job on the worker thread (no-op without one)."""
-        if self._queued is None:
+        """Start the queued job on the worker thread (no-op without one, or ``inline``)."""
+        if self._queued is None or self.inline:
             return
         fn, done = self._queued
         self._queued = None
