@@ -261,7 +261,9 @@ class ImplicitMap:
         apply()
         return res
 
-    def train_deferred(self, max_iters: int | None = None) -> tuple[TrainResult, Callable[[], None]]:
+    def train_deferred(
+        self, max_iters: int | None = None
+    ) -> tuple[TrainResult, Callable[[], None]]:
         """:meth:`train` without touching what readers of the map see: the decoder is trained
         as a copy and the touched features as a sub-table; the returned ``apply()`` writes both
         back (and bumps ``points.version``). Between the two the map answers queries as before
