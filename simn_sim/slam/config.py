@@ -212,10 +212,6 @@ class SlamConfig(Config):
     # their own, wider budget: loop.max_correction_*)
     track_max_correction_m: float = 0.3
     track_max_correction_deg: float = 20.0
-    # a new local frame's map holds one observation when the next arrives: tracking registers
-    # against the previous frame's map until the new one holds this many observations (0:
-    # against the new one as soon as it has a map)
-    track_previous_until: int = 0
     # odometry arcs between consecutive anchors: sigma = base + per-unit growth
     odom_sigma_rot: float = 0.005  # rad
     odom_sigma_rot_per_rad: float = 0.02
@@ -342,7 +338,6 @@ class SlamConfig(Config):
         )
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
         require(self.track_max_correction_m > 0, n, "track_max_correction_m", "must be > 0")
-        require(self.track_previous_until >= 0, n, "track_previous_until", "must be >= 0")
         require(0 <= self.weak_ratio < 1, n, "weak_ratio", "must be in [0, 1)")
         require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")
         require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")

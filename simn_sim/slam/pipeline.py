@@ -124,11 +124,12 @@ class SimnSlam:
         self.tracker = Tracker(cfg, self.frames, self.rng)
         self.revisits = Revisits(cfg, self.frames, self.tracker)
         self.trigger = FrameTrigger(cfg.trigger)
-        # training on a worker thread, joined by the next frame before it tracks
-        lag = cfg.train_latency > 0
+        # the training chunk of a frame, joined by the next frame before it tracks
+        # (train_latency 0) or after (1); on a worker thread with train_async, else inline at
+        # the join (no worker at all for latency 0 without train_async: trained in the step)
         self.trainer = (
             TrainWorker(cfg.torch_threads, inline=not cfg.train_async)
-            if cfg.train_async or lag
+            if cfg.train_async or cfg.train_latency
             else None
         )
         self.n_frames = 0

@@ -176,24 +176,23 @@ class Tracker:
             normal_gate=float(np.cos(np.radians(c.point_sdf_normal_gate_deg))),
         )
 
+    def _target_frames(self) -> list[int]:
+        """The frames tracking may register against, in order: the current one, then the
+        previous one (while the current one has no map yet)."""
+        cur = self.frames.current_id
+        return [cur, cur - 1] if cur > 0 else [cur]
+
     def has_trained_target(self) -> bool:
-        """Whether the current or the previous frame has a trained learned map to track against
+        """Whether a frame of :meth:`_target_frames` has a trained learned map to track against
         (always True on the point store)."""
         if self.cfg.track_sdf != "implicit":
             return True
-        cur = self.frames.current_id
-        fids = [cur, cur - 1] if cur > 0 else [cur]
-        return any(self.frames.states[f].n_trained > 0 for f in fids if f in self.frames.states)
+        return any(self.frames.states[f].n_trained > 0 for f in self._target_frames())
 
     def _target(self) -> tuple[int, Any] | None:
         """(frame id, sdf_and_grad): the current frame's map, or the previous frame's while the
-        current one has none yet or fewer than ``track_previous_until`` observations."""
-        cur = self.frames.current_id
-        order = [cur, cur - 1] if cur > 0 else [cur]
-        young = self.frames.states[cur].frame.n_observations < self.cfg.track_previous_until
-        if cur > 0 and young and cur - 1 in self.frames.states:
-            order = [cur - 1, cur]
-        for fid in order:
+        current one has none yet."""
+        for fid in self._target_frames():
             sdf = self.sdf_of(fid)
             if sdf is not None:
                 return fid, sdf
