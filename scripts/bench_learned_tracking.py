@@ -145,7 +145,7 @@ class StageTimer:
         self.wrap(track_mod.Tracker, "track", "tracking, other")
         self.wrap(psdf_mod.PointCloudSDF, "sdf_and_grad", "point SDF")
         self.wrap(mapper_mod.ImplicitMap, "integrate_frame", "map insertion + ray sampling")
-        self.wrap(mapper_mod.ImplicitMap, "_train", "training (optimiser)")
+        self.wrap(mapper_mod, "train_chunk", "training (optimiser)")
         self.wrap(SimnSlam, "process", "rest of process")
 
 
