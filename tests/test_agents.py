@@ -316,6 +316,9 @@ def test_episode_record_has_act_timing_and_tracking_map():
     )
     assert rec["error"] is None, rec["error"]
     assert rec["steps"] == 5 and rec["tracking_map"] == "learned"
+    # one local frame in 5 steps: nothing to revisit, judged as such against the true poses
+    assert rec["revisit_opportunities"] == 0 and rec["revisits_correct"] == 0
+    assert rec["revisit_err_m_median"] is None
     assert 0 < rec["act_ms_mean"] <= rec["act_ms_p95"] * 5
     assert rec["act_ms_p95"] > 0
     rec = run_episode(
@@ -324,6 +327,44 @@ def test_episode_record_has_act_timing_and_tracking_map():
     )  # fmt: skip
     assert rec["error"] is None and rec["agent"] == "simn_points"
     assert rec["tracking_map"] == "points"
+
+
+def test_revisit_events_name_the_observation_each_frame_opened_at(env):
+    """Ideal sensing: each local frame's anchor (the estimated camera pose it opened at) is
+    the true camera pose of the observation ``revisit_events`` names, within 3 cm / 1 deg, and
+    closer to it than to the observations before and after it."""
+    import math
+
+    from simn_sim.geometry.se3 import inv_T, pose_error
+
+    env = gym.make("SimnOffice-v0", config={"width": 160, "height": 120, "sensing": "ideal"})
+    obs, info = env.reset(seed=3)
+    agent = make_agent("simn", env.unwrapped, {})
+    agent.reset(obs, info)
+    T_ws = info["T_world_base"].copy()
+    true_cam = []
+    for _ in range(25):
+        true_cam.append(np.asarray(info["T_world_cam"], float).copy())
+        obs, _, term, trunc, info = env.step(agent.act(obs, info))
+        assert not (term or trunc)
+    ev = agent.revisit_events()
+    frames = agent.world.frames
+    assert len(ev["frame_obs"]) == len(frames) >= 3 and ev["frame_obs"][0] == 0
+    for fid, i in enumerate(ev["frame_obs"]):
+        anchor = frames.topo.anchor(fid)
+        err = {
+            j: pose_error(inv_T(T_ws) @ true_cam[j], anchor)
+            for j in (i - 1, i, i + 1)
+            if 0 <= j < len(true_cam)
+        }
+        dt, dr = err[i]
+        assert dt < 0.03 and math.degrees(dr) < 1.0, (fid, i, dt, math.degrees(dr))
+        for j, (dtj, drj) in err.items():
+            assert j == i or dtj + drj > dt + dr, (fid, i, j)
+    agent.close()
+    env.close()
+    odo = make_agent("simn", env.unwrapped, {"pose_source": "odometry"})
+    assert odo.revisit_events() is None
 
 
 def test_episode_ate_pairs_each_estimate_with_the_pose_it_was_made_at():

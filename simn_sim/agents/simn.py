@@ -631,6 +631,17 @@ class SimnAgent:
             out.update(self.world.counters())
         return out
 
+    def revisit_events(self) -> dict[str, Any] | None:
+        """The world model's revisit events with each frame's opening as the index of the
+        ``act()`` call whose observation opened it (0: the first; ``reset`` processes that
+        same observation at t = 0), for judging them against the true poses
+        (:func:`simn_sim.eval.revisits.revisit_truth`); None without revisit checks."""
+        ev = None if self.world is None else self.world.revisit_events()
+        if ev is None:
+            return None
+        idx = [max(round(t / self.control_dt) - 1, 0) for t in ev.pop("t_open")]
+        return {**ev, "frame_obs": idx}
+
     def debug(self) -> dict[str, Any]:
         step = getattr(self, "_step", None)
         d: dict[str, Any] = {}

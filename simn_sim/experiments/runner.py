@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from simn_sim.config import Config
+from simn_sim.eval.revisits import revisit_truth
 
 RECORD_FIELDS = (
     "episode_id",
@@ -46,6 +47,11 @@ RECORD_FIELDS = (
     "act_ms_p95",
     "tracking_map",
     "ate_rmse_m",
+    "revisits_correct",
+    "revisit_opportunities",
+    "revisit_opportunities_closed",
+    "revisit_err_m_median",
+    "revisit_err_deg_median",
     "error",
 )
 
@@ -127,6 +133,7 @@ def run_episode(
         )
         true_xy: list[np.ndarray] = []
         est_xy: list[np.ndarray] = []
+        true_cam: list[np.ndarray] = []  # the true camera pose of each act()'s observation
         plan_ms: list[float] = []
         map_ms: list[float] = []
         ctl_ms: list[float] = []
@@ -139,6 +146,7 @@ def run_episode(
             # observation (pairing it with the pose after the step added the step's motion to
             # the error: 5 cm ATE for exact odometry at 320x240, docs/slam.md)
             xy_now = info["T_world_base"][:2, 3].copy()
+            true_cam.append(np.asarray(info["T_world_cam"], float).copy())
             tc = time.perf_counter()
             action = agent.act(obs, info)
             ctl_ms.append((time.perf_counter() - tc) * 1e3)
@@ -174,6 +182,11 @@ def run_episode(
         rec["ate_rmse_m"] = _ate_rmse(true_xy, est_xy)
         rec["agent_state"] = agent.state()
         rec.update(agent.counters())
+        ev = agent.revisit_events() if hasattr(agent, "revisit_events") else None
+        if ev is not None:  # revisits judged against the true poses (eval/revisits.py)
+            rec.update(
+                revisit_truth(ev["frame_obs"], ev["accepted"], true_cam, ev["exclude_recent"])
+            )
     except Exception as e:  # noqa: BLE001 - a failing episode is recorded, never fatal
         rec["error"] = f"{type(e).__name__}: {e}\n{traceback.format_exc()}"
         rec["termination"] = "error"

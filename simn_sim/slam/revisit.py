@@ -206,6 +206,8 @@ class Revisits:
                 "ranking": self.ranking,
                 "candidates": [[f, round(v, 4)] for f, v in self._ranked],
                 "accepted": res.accepted,
+                # the loop arc: this frame's anchor in the accepted frame (None if none)
+                "T_i_j": None if res.T_i_j is None else np.asarray(res.T_i_j).tolist(),
                 "attempts": [
                     {
                         "candidate": a.frame_id,

@@ -70,6 +70,11 @@ class WorldModel(Protocol):
         """Fallbacks and events of the episode so far (go into the episode record)."""
         ...
 
+    def revisit_events(self) -> dict[str, Any] | None:
+        """Frame opening times, accepted revisits and their arcs (see ``SlamWorld``), or None
+        where nothing checks revisits."""
+        ...
+
     def debug(self) -> dict[str, Any]:
         """Recording data (local frames, topology, estimated pose) in the agent frame."""
         ...

@@ -86,6 +86,10 @@ class OdometryWorld:
     def counters(self) -> dict[str, int]:
         return {"local_frames": len(self.frames), "carved_points": self.frames.n_carved}
 
+    def revisit_events(self) -> None:
+        """No revisit checks: the odometry pose is never corrected."""
+        return None
+
     def debug(self) -> dict[str, Any]:
         return {
             "local_frames": self.frames.debug(),

@@ -83,6 +83,24 @@ class SlamWorld:
             "carved_points": s["carved_points"],
         }
 
+    def revisit_events(self) -> dict[str, Any]:
+        """Each local frame's opening time (s, by frame id), the accepted revisits as
+        ``(query frame, accepted frame, T_i_j)`` (the query's anchor in the accepted frame)
+        and the check's ``exclude_recent``: what :func:`simn_sim.eval.revisits.revisit_truth`
+        judges."""
+        frames = self.slam.frames
+        t_open = [frames.states[f].frame.t_start for f in sorted(frames.states)]
+        acc = [
+            (int(e["frame"]), int(e["accepted"]), np.asarray(e["T_i_j"], float))
+            for e in self.slam.loop_log
+            if e.get("accepted") is not None
+        ]
+        return {
+            "t_open": t_open,
+            "accepted": acc,
+            "exclude_recent": self.slam.cfg.loop.exclude_recent,
+        }
+
     def debug(self) -> dict[str, Any]:
         d = self.slam.debug()
         d["tracking_map"] = self.slam.tracking_map
