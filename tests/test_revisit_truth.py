@@ -88,3 +88,32 @@ def test_bad_input_is_named():
         revisit_truth([0, 1], [(5, 0, np.eye(4))], poses)
     with pytest.raises(ValueError, match="tol_m must be > 0"):
         revisit_truth([0], [], poses, tol_m=0.0)
+
+
+def test_revisit_report_pools_counts_over_episodes(tmp_path):
+    """``scripts/revisit_report.py``: precision and recall from summed counts, not a mean of
+    per-episode ratios; records without the judged fields (other agents, old runs) skipped."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "revisit_report.py"
+    spec = importlib.util.spec_from_file_location("revisit_report", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    base = {"agent": "simn", "seed": 0}
+    recs = [
+        {**base, "episode_id": "a", "revisits": 3, "revisits_correct": 2,
+         "revisit_opportunities": 4, "revisit_opportunities_closed": 1,
+         "revisit_err_m_median": 0.05, "revisit_err_deg_median": 1.0},
+        {**base, "episode_id": "b", "revisits": 1, "revisits_correct": 1,
+         "revisit_opportunities": 0, "revisit_opportunities_closed": 0,
+         "revisit_err_m_median": 0.01, "revisit_err_deg_median": 0.5},
+        {**base, "episode_id": "c", "revisits": 2, "revisits_correct": None},
+    ]  # fmt: skip
+    p = mod.pooled(recs)
+    assert p["episodes"] == 2 and p["accepted"] == 4 and p["correct"] == 3
+    assert p["precision"] == 0.75 and p["recall"] == 0.25  # 3/4 and 1/4
+    assert p["err_m_median"] == pytest.approx(0.03)
+    (tmp_path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    assert mod.main([str(tmp_path)]) == 0
