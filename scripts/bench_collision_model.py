@@ -191,6 +191,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--episode-file", type=Path, default=envs_dir() / "episodes/office_nav_v2.json")
     ap.add_argument("--per-layout", type=int, default=1, help="first N episodes of each layout")
+    ap.add_argument(
+        "--episode-ids", default="", help="comma-separated ids (instead of --per-layout)"
+    )
     ap.add_argument("--dynamic", type=int, default=0, help="first N episodes of office_dynamic_v1")
     ap.add_argument("--every", type=int, default=100, help="steps between snapshots")
     ap.add_argument("--max-steps", type=int, default=400)
@@ -206,7 +209,12 @@ def main() -> int:
     todo = []
     eset = EpisodeSet.load(args.episode_file)
     seen: dict[str, int] = {}
+    ids = [i for i in args.episode_ids.split(",") if i]
     for ep in eset.episodes:
+        if ids:
+            if ep.episode_id in ids:
+                todo.append((eset.env_id, ep))
+            continue
         key = str(ep.layout_seed)
         if seen.get(key, 0) < args.per_layout:
             seen[key] = seen.get(key, 0) + 1
