@@ -193,6 +193,43 @@ def test_training_on_the_worker_thread_gives_the_synchronous_poses(latency):
     assert max(err) < 0.01
 
 
+def test_torch_threads_stay_held_while_a_chunk_runs_on_the_worker():
+    """With ``train_async`` the caller's torch threads stay at ``torch_threads`` from a frame's
+    ``process`` until its training chunk is joined (``sync``, the next frame or ``close``),
+    then are given back. Given back mid-chunk they made in-process episodes irreproducible
+    (one seed: 151-157 steps at 2 threads)."""
+    from simn_sim.geometry.camera import Intrinsics
+    from simn_sim.slam import SimnSlam, SlamConfig
+
+    scene = office_scene()
+    intr = Intrinsics.from_fovy(96, 72)
+    eye = np.array([-0.5, -0.6, 1.2])
+    depth = scene.render_depth(intr, look_at(eye, eye + np.array([0.0, 0.6, -0.3])))
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        cfg = SlamConfig.for_agent(
+            train_async=True, semantics=False, open_train_iters=2, train_iters=1, torch_threads=1
+        )
+        slam = SimnSlam(cfg, intr)
+        slam.process(0.1, None, depth)
+        assert slam.trainer is not None and slam.trainer.busy  # the chunk is on the worker
+        assert torch.get_num_threads() == 1  # held
+        slam.sync()
+        assert torch.get_num_threads() == 2  # given back at the join
+        slam.process(0.2, None, depth)
+        assert slam.trainer.busy and torch.get_num_threads() == 1
+        slam.close()
+        assert torch.get_num_threads() == 2
+        # without a worker thread nothing runs beside the caller: given back at once
+        slam = SimnSlam(SlamConfig.for_agent(train_async=False, semantics=False), intr)
+        slam.process(0.1, None, depth)
+        assert torch.get_num_threads() == 2
+        slam.close()
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_reused_neighbour_tables_equal_a_fresh_query():
     """TrackingSdf with ``reuse_distance``: within it the neighbours of the last k-NN search
     and their gathered tables are reused (no search, no gather), and the SDF and gradient equal

@@ -137,6 +137,7 @@ class SimnSlam:
         self.n_map_skipped = 0  # frames the learned map rejected as empty
         self._records: list[tuple[float, int, np.ndarray, np.ndarray]] = []
         self.last: SlamFrame | None = None
+        self._held_threads: int | None = None  # the caller's, while a chunk runs (process)
 
     # ---- the local frames and the topological map, read-only views -------------------------
     @property
@@ -174,14 +175,28 @@ class SimnSlam:
         odometry); only its change since the previous call is used (so its drift does not
         enter), except on the first call, where it defines the world frame.
         """
-        n_threads = torch.get_num_threads()
-        if self.cfg.torch_threads and self.cfg.torch_threads != n_threads:
+        # the caller's torch threads: set to ``torch_threads`` here and given back when no
+        # training chunk runs on the worker thread; while one runs they stay held until the
+        # next join. Given back mid-chunk, in-process runs with 2 threads were not
+        # reproducible (one seed gave episodes of 151-157 steps): the setting reaches a
+        # library whose thread count is process-wide (presumably MKL, which torch also sets),
+        # so the chunk's products split over a thread count that depended on timing
+        n_threads = torch.get_num_threads() if self._held_threads is None else self._held_threads
+        if self.cfg.torch_threads and self.cfg.torch_threads != torch.get_num_threads():
             torch.set_num_threads(self.cfg.torch_threads)
         try:
             return self._process(t, rgb, depth, T_world_cam_prior)
         finally:
-            if torch.get_num_threads() != n_threads:
-                torch.set_num_threads(n_threads)
+            if self.trainer is not None and self.trainer.busy:
+                self._held_threads = n_threads
+            else:
+                self._give_back_threads(n_threads)
+
+    def _give_back_threads(self, n_threads: int | None = None) -> None:
+        n = self._held_threads if n_threads is None else n_threads
+        self._held_threads = None
+        if n is not None and torch.get_num_threads() != n:
+            torch.set_num_threads(n)
 
     def _process(
         self,
@@ -294,11 +309,16 @@ class SimnSlam:
         and apply its bookkeeping. Call before reading the learned maps between frames."""
         if self.trainer is not None:
             self.trainer.join()
+        self._give_back_threads()
 
     def close(self) -> None:
-        """:meth:`sync` and stop the training thread (``train_async``)."""
-        if self.trainer is not None:
-            self.trainer.close()
+        """:meth:`sync` and stop the training thread (``train_async``); the caller's torch
+        threads are given back."""
+        try:
+            if self.trainer is not None:
+                self.trainer.close()
+        finally:
+            self._give_back_threads()
 
     def _initial_pose(self, prior: np.ndarray | None) -> np.ndarray:
         if prior is not None:
