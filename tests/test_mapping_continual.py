@@ -99,3 +99,70 @@ def test_ewc_and_replay_reduce_forgetting(experiment):
 def test_region_b_is_still_learned_with_ewc_and_replay(experiment):
     b_plain, b_cl = experiment["plain"][1], experiment["ewc_replay"][1]
     assert b_cl < 0.015 and b_cl < 2.0 * b_plain
+
+
+def _fisher_case(decoding: str, seed: int = 0):
+    import torch
+
+    from simn_sim.mapping.config import DecoderConfig
+    from simn_sim.mapping.decoder import Decoder
+    from simn_sim.mapping.losses import bce_sdf_loss
+
+    g = torch.Generator().manual_seed(seed)
+    dec = Decoder(DecoderConfig(decoding=decoding), feature_dim=8, generator=g)
+    n, lead = 600, ((600,) if decoding == "interpolated" else (600, 4))
+    inputs = (
+        torch.randn(*lead, 8, generator=g),
+        torch.rand(*lead, 3, generator=g),
+        0.3 * torch.randn(*lead, 3, generator=g),
+    )
+    if decoding != "interpolated":
+        w = torch.rand(n, 4, generator=g)
+        inputs = (*inputs, w / w.sum(1, keepdim=True))
+    labels = 0.1 * torch.randn(n, generator=g)
+    return dec, inputs, labels, lambda out, y: bce_sdf_loss(out, y, 0.05)
+
+
+def test_fisher_from_outer_products_equals_the_per_sample_gradients():
+    """The diagonal Fisher from per-layer outer products (one backward for all samples) is
+    the mean of the squared per-sample gradients that vmap takes one sample at a time, for
+    every parameter of the decoder, over several chunks."""
+    import torch
+
+    from simn_sim.mapping.losses import diagonal_fisher
+
+    dec, inputs, labels, loss = _fisher_case("interpolated")
+    ref = diagonal_fisher(dec, inputs, labels, loss, chunk=256, method="vmap")
+    out = diagonal_fisher(dec, inputs, labels, loss, chunk=256, method="outer")
+    auto = diagonal_fisher(dec, inputs, labels, loss, chunk=256)
+    assert set(out) == set(ref) == {k for k, _ in dec.named_parameters()}
+    for k in ref:
+        assert ref[k].abs().max() > 0, k
+        torch.testing.assert_close(out[k], ref[k], rtol=1e-5, atol=1e-12)
+        assert torch.equal(auto[k], out[k])
+    # a single sample: the squared gradient itself
+    x1 = tuple(t[:1] for t in inputs)
+    dec.zero_grad()
+    loss(dec(*x1), labels[:1]).backward()
+    one = diagonal_fisher(dec, x1, labels[:1], loss, method="outer")
+    for k, p in dec.named_parameters():
+        torch.testing.assert_close(one[k], p.grad**2, rtol=1e-5, atol=1e-12)
+
+
+def test_fisher_falls_back_to_vmap_where_samples_are_not_rows():
+    """Per-neighbour decoding applies the MLP to (N, k, in) tables (a sample's gradient is a
+    sum over its k neighbours, not one outer product): ``auto`` takes the vmap path and
+    ``outer`` says why it cannot."""
+    import torch
+
+    from simn_sim.mapping.losses import diagonal_fisher
+
+    dec, inputs, labels, loss = _fisher_case("per_neighbor")
+    ref = diagonal_fisher(dec, inputs, labels, loss, method="vmap")
+    auto = diagonal_fisher(dec, inputs, labels, loss)
+    for k in ref:
+        assert torch.equal(auto[k], ref[k])
+    with pytest.raises(ValueError, match="outer"):
+        diagonal_fisher(dec, inputs, labels, loss, method="outer")
+    with pytest.raises(ValueError, match="unknown method"):
+        diagonal_fisher(dec, inputs, labels, loss, method="exact")

@@ -28,7 +28,9 @@ class TrainResult:
     iterations: int
     converged: bool  # stopped on the windowed loss change (not the cap)
     final_loss: float  # mean total loss over the last window
-    n_samples: int  # valid samples used (new + replayed)
+    # samples of the chunk (new + replayed) not found beyond every neural point's search
+    # radius (a sample's neighbours are searched when a batch first draws it)
+    n_samples: int
     n_replayed: int
     seconds: float
 
