@@ -264,7 +264,7 @@ class ImplicitMap:
         self, max_iters: int | None = None
     ) -> tuple[TrainResult, Callable[[], None]]:
         """:meth:`train` without touching what readers of the map see: the decoder is trained
-        as a copy and the feature table as a copy; the returned ``apply()`` writes both
+        as a copy and the touched features as a sub-table; the returned ``apply()`` writes both
         back (and bumps ``points.version``). Between the two the map answers queries as before
         the training (``n_trainings`` too), so another thread may track against it or
         register to it meanwhile (``train_latency`` 1, the revisit check of a new frame);

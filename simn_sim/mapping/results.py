@@ -28,9 +28,7 @@ class TrainResult:
     iterations: int
     converged: bool  # stopped on the windowed loss change (not the cap)
     final_loss: float  # mean total loss over the last window
-    # samples of the chunk (new + replayed) not found beyond every neural point's search
-    # radius (a sample's neighbours are searched when a batch first draws it)
-    n_samples: int
+    n_samples: int  # valid samples used (new + replayed)
     n_replayed: int
     seconds: float
 

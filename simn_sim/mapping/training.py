@@ -2,9 +2,8 @@
 
 The loss is ``lambda_b BCE + lambda_e Eikonal + lambda_EWC EWC`` (plus the Gaussian prior on
 the learned residual) on the frame's new samples, this frame's replay and the closed frames'
-replay; Adam on a copy of the decoder and of the feature table (a row no batch touches stays
-as it was). A sample's neighbours are searched when a batch first draws it. Nothing the
-map's readers see changes until the returned ``apply()`` runs.
+replay; Adam on a copy of the decoder and on the features of the neural points the batch
+touches. Nothing the map's readers see changes until the returned ``apply()`` runs.
 """
 
 from __future__ import annotations
@@ -27,9 +26,9 @@ __all__ = ["train_chunk"]
 
 def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, Callable[[], None]]:
     """The body of :meth:`ImplicitMap.train_deferred` (called with denormals flushed): the
-    adaptive loop on ``imap``'s pending samples mixed with replayed ones, on copies of the
-    decoder and of the feature table; returns the result and ``apply()``, which writes both
-    back."""
+    adaptive loop on ``imap``'s pending samples mixed with replayed ones, on a copy of the
+    decoder and a sub-table of the features; returns the result and ``apply()``, which writes
+    both back."""
     tc = imap.cfg.training
     t0 = time.perf_counter()
     cap = tc.max_iters if max_iters is None else int(max_iters)
@@ -47,20 +46,29 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
     n_prev = len(imap.frame_replay) if tc.use_replay else 0  # closed frames' samples
     if tc.use_replay and len(imap.replay) > 0:
         m = int(round(n_new * tc.replay_ratio / (1.0 - tc.replay_ratio)))
-        Xo, So, _ = imap.replay.sample(max(m, 1), imap.generator)
+        Xo, So, Ko = imap.replay.sample(max(m, 1), imap.generator)
     else:
-        Xo, So = Xn[:0], Sn[:0]
-    X, S = torch.cat([Xn, Xo]), torch.cat([Sn, So])
-    n_all = X.shape[0]
-    pts = imap.points
-    n_points = len(pts)
-    # each row's k neighbours, searched when a batch first draws the row (-2: not yet; -1:
-    # none within the search radius). A chunk of a few iterations draws about half of its
-    # rows, so the other half is never searched; a row without neighbours is drawn again.
-    nidx = torch.full((n_all, pts.cfg.k_neighbors), -2, dtype=torch.long, device=imap.device)
-    q_all, n_all_planes = pts.planes()
-    # the whole feature table is trained: Adam leaves a row without a gradient where it is
-    feat = pts.features[:n_points].clone().requires_grad_(True)
+        Xo, So, Ko = Xn[:0], Sn[:0], Kn[:0]
+    X, S, K = torch.cat([Xn, Xo]), torch.cat([Sn, So]), torch.cat([Kn, Ko])
+    old = torch.cat(
+        [torch.zeros(n_new, dtype=torch.bool), torch.ones(Xo.shape[0], dtype=torch.bool)]
+    )
+    old = old.to(imap.device)
+    idx, _ = imap.points.knn(X)
+    ok = idx[:, 0] >= 0
+    X, S, K, idx, old = X[ok], S[ok], K[ok], idx[ok], old[ok]
+    if X.shape[0] == 0:
+        return TrainResult(0, False, float("nan"), 0, 0, time.perf_counter() - t0), _nothing
+    # Work on the sub-table of neural points this batch touches.
+    nbv = idx >= 0
+    active, local = torch.unique(idx[nbv], return_inverse=True)
+    lidx = torch.zeros_like(idx)
+    lidx[nbv] = local
+    nb_pos = imap.points.positions[active][lidx]
+    nb_col = imap.points.colors[active][lidx]
+    q_all, n_all = imap.points.planes()
+    nb_q, nb_n = q_all[active][lidx], n_all[active][lidx]
+    feat = imap.points.features[active].clone().requires_grad_(True)
     dec = copy.deepcopy(imap.decoder)  # trained aside; apply() writes it back
     opt = torch.optim.Adam(
         [
@@ -68,9 +76,8 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
             {"params": [feat], "lr": tc.feature_lr},
         ]
     )
-    new_ids = torch.arange(n_new, device=imap.device)
-    old_ids = torch.arange(n_new, n_all, device=imap.device)
-    all_ids = torch.arange(n_all, device=imap.device)
+    new_ids = torch.nonzero(~old).squeeze(1)
+    old_ids = torch.nonzero(old).squeeze(1)
     use_ewc = tc.use_ewc and imap.ewc.active and tc.ewc_weight > 0
     dc = dec.cfg
     shrink = tc.residual_weight > 0 and dc.geometric_prior and dc.decoding == "interpolated"
@@ -83,23 +90,6 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
         i = torch.randint(ids.numel(), (k,), generator=imap.generator, device=imap.device)
         return ids[i]
 
-    def draw_near(ids: torch.Tensor, k: int) -> torch.Tensor:
-        """k rows of ids that have neighbours (with replacement): a drawn row without any is
-        drawn again, for a few rounds."""
-        parts, need = [], k
-        for _ in range(4):
-            if need <= 0:
-                break
-            bi = draw(ids, need)
-            todo = bi[nidx[bi, 0] == -2]
-            if todo.numel():
-                u = torch.unique(todo)
-                nidx[u] = pts.knn(X[u])[0]
-            bi = bi[nidx[bi, 0] >= 0]
-            parts.append(bi)
-            need -= bi.numel()
-        return torch.cat(parts)
-
     # batch: new samples, this frame's replay and the closed frames' replay (frame_replay)
     nb_rep = int(round(B * tc.replay_ratio)) if (old_ids.numel() or n_prev) else 0
     nb_prev = 0
@@ -107,25 +97,20 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
         nb_prev = nb_rep if not old_ids.numel() else int(round(nb_rep * tc.frame_replay_share))
         nb_prev = min(nb_prev, B - 1)
     Bc = B - nb_prev  # samples of this frame per batch
-    n_steps = 0
     for it in range(1, cap + 1):  # noqa: B007
         if old_ids.numel() and new_ids.numel():
             nb_old = nb_rep - nb_prev
-            bi = torch.cat([draw_near(new_ids, Bc - nb_old), draw_near(old_ids, nb_old)])
+            bi = torch.cat([draw(new_ids, Bc - nb_old), draw(old_ids, nb_old)])
         else:
-            bi = draw_near(all_ids, Bc)
-        if bi.numel() == 0:
-            continue  # no drawn row near a neural point
-        idx = nidx[bi]
+            bi = torch.randint(X.shape[0], (Bc,), generator=imap.generator, device=imap.device)
         x = X[bi]
-        ne = min(int(round(B * tc.eikonal_fraction)), x.shape[0]) if tc.eikonal_weight > 0 else 0
+        ne = min(int(round(B * tc.eikonal_fraction)), Bc) if tc.eikonal_weight > 0 else 0
         if ne:
             x = x.clone()
             xe = x[:ne].requires_grad_(True)
             x = torch.cat([xe, x[ne:]])
-        ic = idx.clamp(min=0)
         inp = imap._decoder_inputs(
-            x, pts.positions[ic], idx >= 0, feat[ic], pts.colors[ic], q_all[ic], n_all_planes[ic]
+            x, nb_pos[bi], nbv[bi], feat[lidx[bi]], nb_col[bi], nb_q[bi], nb_n[bi]
         )
         pred = dec(*inp)
         label = S[bi]
@@ -148,7 +133,6 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        n_steps += 1
         losses.append(float(loss.detach()))
         w = tc.loss_window
         if it >= max(tc.min_iters, 2 * w):
@@ -157,22 +141,17 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
             if abs(a - b) < tc.loss_threshold:
                 converged = True
                 break
-    if n_steps == 0:  # no sample of the chunk near a neural point
-        return TrainResult(0, False, float("nan"), 0, 0, time.perf_counter() - t0), _nothing
     feat = feat.detach()
 
     def apply() -> None:
         with torch.no_grad():
-            pts.features[:n_points] = feat
+            imap.points.features[active] = feat
             for p, q in zip(imap.decoder.parameters(), dec.parameters(), strict=True):
                 p.copy_(q)
-        pts.version += 1
+        imap.points.version += 1
         imap.n_trainings += 1  # with the write-back: readers key caches on it (revisit.py)
 
-    # the new samples join the replay pools, but for those known to lie beyond every neural
-    # point's search radius
-    kept = nidx[:, 0] != -1  # not known to lie beyond every neural point's search radius
-    Xnv, Snv, Knv = Xn[kept[:n_new]], Sn[kept[:n_new]], Kn[kept[:n_new]]
+    Xnv, Snv, Knv = X[~old], S[~old], K[~old]
     if tc.use_replay:
         imap.replay.add(Xnv, Snv, Knv, imap.generator)
     imap._recent.add(Xnv, Snv, Knv, imap.generator)
@@ -181,8 +160,8 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
         iterations=it,
         converged=converged,
         final_loss=sum(losses[-w:]) / w,
-        n_samples=int(kept.sum()),
-        n_replayed=int(kept[n_new:].sum()) + (len(imap.frame_replay) if nb_prev else 0),
+        n_samples=int(X.shape[0]),
+        n_replayed=int(old_ids.numel()) + (len(imap.frame_replay) if nb_prev else 0),
         seconds=time.perf_counter() - t0,
     )
     imap.last_train = res

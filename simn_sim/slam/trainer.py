@@ -4,7 +4,7 @@
 when it integrates the frame and starts it here at once; the chunk runs while the caller checks
 a new frame for a revisit, plans, steps the env and perceives the next frame (torch releases
 the GIL), and the next :meth:`~SimnSlam.process` joins it before it tracks. A chunk trains a
-copy of the decoder and of the feature table and writes them back at the join, so the
+copy of the decoder and a sub-table of the features and writes them back at the join, so the
 revisit check reads the map as it was before the chunk, as it did when the chunk started after
 it; nothing else writes the map in between (perception does not touch it), so the map that
 frame t+1 is tracked against is the one the synchronous path would have: the estimated poses
