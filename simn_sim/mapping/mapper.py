@@ -266,8 +266,7 @@ class ImplicitMap:
         """:meth:`train` without touching what readers of the map see: the decoder is trained
         as a copy and the touched features as a sub-table; the returned ``apply()`` writes both
         back (and bumps ``points.version``). Between the two the map answers queries as before
-        the training (``n_trainings`` too), so another thread may track against it or
-        register to it meanwhile (``train_latency`` 1, the revisit check of a new frame);
+        the training, so another thread may track against it meanwhile (``train_latency`` 1);
         nothing else may change the map until ``apply()`` ran. ``train`` is this with
         ``apply()`` at once (the same numbers)."""
         with flush_denormals():

@@ -149,8 +149,8 @@ def train_chunk(imap: ImplicitMap, max_iters: int | None) -> tuple[TrainResult, 
             for p, q in zip(imap.decoder.parameters(), dec.parameters(), strict=True):
                 p.copy_(q)
         imap.points.version += 1
-        imap.n_trainings += 1  # with the write-back: readers key caches on it (revisit.py)
 
+    imap.n_trainings += 1
     Xnv, Snv, Knv = X[~old], S[~old], K[~old]
     if tc.use_replay:
         imap.replay.add(Xnv, Snv, Knv, imap.generator)

@@ -260,11 +260,6 @@ class SimnSlam:
         frame = frame.with_labels(labels)
         if not integrate(frames, st, frame, T_anchor_cam, self.cfg, self.trainer):
             self.n_map_skipped += 1
-        if self.trainer is not None:
-            # the frame's training, on the worker from here on: beside the revisit check of a
-            # new frame (which reads the map as it was before the chunk: a chunk's changes are
-            # written back at the join) and the rest of the step
-            self.trainer.start()
         if new_frame and not first:
             # the revisit check of a new frame runs once its first observation is in its map:
             # the learned ranking matches the key points (and features) trained on it; the
@@ -305,6 +300,8 @@ class SimnSlam:
             inlier_rms=res.rms,
         )
         self.last = out
+        if self.trainer is not None:  # the frame's training, on the worker from here on
+            self.trainer.start()
         return out
 
     def sync(self) -> None:

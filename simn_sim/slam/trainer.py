@@ -1,14 +1,12 @@
 """Training of the learned local-frame maps on a worker thread (``SlamConfig.train_async``).
 
-:meth:`SimnSlam.process` queues the frame's training chunk (``ImplicitMap.train_deferred``)
-when it integrates the frame and starts it here at once; the chunk runs while the caller checks
-a new frame for a revisit, plans, steps the env and perceives the next frame (torch releases
-the GIL), and the next :meth:`~SimnSlam.process` joins it before it tracks. A chunk trains a
-copy of the decoder and a sub-table of the features and writes them back at the join, so the
-revisit check reads the map as it was before the chunk, as it did when the chunk started after
-it; nothing else writes the map in between (perception does not touch it), so the map that
-frame t+1 is tracked against is the one the synchronous path would have: the estimated poses
-are bit-identical. Only the bookkeeping that follows a training (the frame's trained
+:meth:`SimnSlam.process` queues the frame's training chunk (``ImplicitMap.train``) when it
+integrates the frame, starts it here as its last step (after the revisit check, which reads the
+map) and returns; the chunk runs while the caller plans, steps the env and perceives the next
+frame (torch releases the GIL), and the next :meth:`~SimnSlam.process` joins it before it
+tracks. Nothing reads or writes the map in between (perception does not touch it), so the map
+that frame t+1 is tracked against is the one the synchronous path would have: the estimated
+poses are bit-identical. Only the bookkeeping that follows a training (the frame's trained
 count and its topological node's descriptor and region) happens at the join, one step later.
 
 The worker thread sets its own torch intra-op threads (OpenMP's setting is per thread) and
