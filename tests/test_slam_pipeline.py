@@ -209,3 +209,61 @@ def test_points_agent_preset_runs_cheaply(desk):
     slam, outs, gt = _run(desk, cfg, n=10)
     assert all(o.success for o in outs[1:])
     assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01
+
+
+def test_odometry_prior_grows_with_the_motion():
+    """The odometry increment's sigma is the constant plus the per-unit growth times the motion
+    (a 0.08 m step with a 0.05 rad turn: rot 0.1 deg + 0.02 x 0.13, trans 2 mm + 0.02 x 0.08
+    m); without growth terms, the constant information; negative growth is a config error."""
+    from simn_sim.slam.frames import LocalFrames
+    from simn_sim.slam.track import Tracker
+
+    cfg = SlamConfig(
+        map_kind="points",
+        odom_prior_sigma_rot_deg=0.1,
+        odom_prior_sigma_trans=0.002,
+        odom_prior_sigma_rot_per_unit=0.02,
+        odom_prior_sigma_trans_per_m=0.02,
+    )
+    tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
+    tr.last_prior = np.eye(4)
+    step = np.eye(4)
+    c, s = np.cos(0.05), np.sin(0.05)
+    step[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    step[:3, 3] = [0.08, 0.0, 0.0]
+    sig = 1.0 / np.sqrt(np.diag(tr.odom_info(step)))
+    np.testing.assert_allclose(sig[:3], np.radians(0.1) + 0.02 * 0.13, rtol=1e-9)
+    np.testing.assert_allclose(sig[3:], 0.002 + 0.02 * 0.08, rtol=1e-9)
+    const = SlamConfig(map_kind="points", odom_prior_sigma_rot_deg=0.1)
+    tr0 = Tracker(const, LocalFrames(const), np.random.default_rng(0))
+    tr0.last_prior = np.eye(4)
+    sig0 = 1.0 / np.sqrt(np.diag(tr0.odom_info(step)))
+    np.testing.assert_allclose(sig0, [np.radians(0.1)] * 3 + [0.005] * 3, rtol=1e-9)
+    with pytest.raises(ValueError, match="odom_prior_sigma_trans_per_m"):
+        SlamConfig(odom_prior_sigma_trans_per_m=-0.1)
+
+
+def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
+    """Fused correction per tangent direction = info / (info + prior) x the registration's
+    correction, info = 1 / (track_cov_scale x its variance): scaling the covariance by s moves
+    the estimate towards the prediction exactly so."""
+    from types import SimpleNamespace
+
+    from simn_sim.geometry.se3 import se3_exp
+    from simn_sim.slam.frames import LocalFrames
+    from simn_sim.slam.track import Tracker
+    from simn_sim.tracking.lie import se3_log
+
+    delta = np.array([0.002, -0.001, 0.003, 0.01, -0.004, 0.006])
+    var = np.array([1e-6, 2e-6, 1e-6, 4e-5, 1e-5, 2e-5])
+    prior_info = np.diag(1.0 / np.array([1e-6] * 3 + [2.5e-5] * 3))
+    pts = np.random.default_rng(0).uniform(-1, 1, (100, 3)) + [0, 0, 2]
+    res = SimpleNamespace(covariance=np.diag(var), eig_ratio=1.0)
+    for s in (1.0, 30.0):
+        cfg = SlamConfig(map_kind="points", track_cov_scale=s, gate_sigmas=0.0)
+        tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
+        T_pred = np.eye(4)
+        fused = tr._fuse(pts, T_pred, se3_exp(delta), res, prior_info)
+        info = 1.0 / (s * var)
+        expect = info / (info + np.diag(prior_info)) * delta
+        np.testing.assert_allclose(se3_log(fused), expect, rtol=1e-6, atol=1e-12)

@@ -196,11 +196,18 @@ class SlamConfig(Config):
         degeneracy_ratio=1e-7, min_valid_fraction=0.2
     )
     fuse_prior: bool = True
+    # the registration's covariance (sigma^2 (J^T W J)^-1, which takes every residual as
+    # independent) is multiplied by this in the fusion with the motion prior
+    track_cov_scale: float = 1.0
     weak_ratio: float = 1e-2  # information eigenvalues below this share of the largest: dropped
     prior_sigma_rot_deg: float = 1.5  # constant-velocity prediction uncertainty per frame
     prior_sigma_trans: float = 0.03  # m
     odom_prior_sigma_rot_deg: float = 0.3  # an external (wheel odometry) increment per frame
     odom_prior_sigma_trans: float = 0.005  # m
+    # growth of the odometry increment's sigma with the motion (Tracker.odom_info): rad per
+    # (rad turned + m travelled), m per m travelled; 0: the constant sigmas above
+    odom_prior_sigma_rot_per_unit: float = 0.0
+    odom_prior_sigma_trans_per_m: float = 0.0
     # registration weights: inverse variance of a point's depth noise, sigma(z) = depth_sigma0
     # + depth_sigma_per_m2 z^2 (stereo depth error grows with z^2); 0 per m^2: equal weights
     depth_sigma0: float = 0.003
@@ -343,6 +350,9 @@ class SlamConfig(Config):
         require(self.prior_sigma_trans > 0, n, "prior_sigma_trans", "must be > 0")
         require(self.odom_prior_sigma_rot_deg > 0, n, "odom_prior_sigma_rot_deg", "must be > 0")
         require(self.odom_prior_sigma_trans > 0, n, "odom_prior_sigma_trans", "must be > 0")
+        require(self.track_cov_scale > 0, n, "track_cov_scale", "must be > 0")
+        for k in ("odom_prior_sigma_rot_per_unit", "odom_prior_sigma_trans_per_m"):
+            require(getattr(self, k) >= 0, n, k, "must be >= 0")
         require(self.track_max_correction_deg > 0, n, "track_max_correction_deg", "must be > 0")
         for f in (
             "odom_sigma_rot",

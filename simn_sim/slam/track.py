@@ -222,10 +222,26 @@ class Tracker:
         ratio = (t - t1) / (t1 - t0) if t1 > t0 else 1.0
         return constant_velocity_prior(T0, T1, float(np.clip(ratio, 0.0, 5.0)))
 
+    def odom_info(self, prior: np.ndarray) -> np.ndarray:
+        """Information of the odometry increment from the last prior to ``prior``: sigma =
+        ``odom_prior_sigma_*`` plus ``odom_prior_sigma_rot_per_unit`` x (turn in rad + travel
+        in m) for rotations and ``odom_prior_sigma_trans_per_m`` x travel for translations (the
+        wheel-odometry drift model of :func:`simn_sim.env.noise.odometry_step`); without the
+        per-unit terms the constant information."""
+        c = self.cfg
+        if c.odom_prior_sigma_rot_per_unit == 0 and c.odom_prior_sigma_trans_per_m == 0:
+            return self._odom_info
+        d = inv_T(self.last_prior) @ prior
+        ang = float(np.linalg.norm(se3_log(d)[:3]))
+        dist = float(np.linalg.norm(d[:3, 3]))
+        sr = np.radians(c.odom_prior_sigma_rot_deg) + c.odom_prior_sigma_rot_per_unit * (ang + dist)
+        st = c.odom_prior_sigma_trans + c.odom_prior_sigma_trans_per_m * dist
+        return np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+
     def track(self, pts: np.ndarray, T_pred: np.ndarray, prior: np.ndarray | None) -> TrackResult:
         """Register ``pts`` starting from ``T_pred`` (anchor coordinates)."""
         use_odom = prior is not None and self.last_prior is not None
-        res = self._register(pts, T_pred, self._odom_info if use_odom else self._cv_info)
+        res = self._register(pts, T_pred, self.odom_info(prior) if use_odom else self._cv_info)
         if res.success:
             self.update_rms(res.rms)
         res.T_anchor_cam = orthonormalize(res.T_anchor_cam)
@@ -292,7 +308,8 @@ class Tracker:
         registration's covariance is singular (``LinAlgError``: the registration is kept)."""
         delta = se3_log(inv_T(T_pred) @ T_est)
         try:
-            info = np.linalg.inv(0.5 * (res.covariance + res.covariance.T))
+            cov = 0.5 * (res.covariance + res.covariance.T) * self.cfg.track_cov_scale
+            info = np.linalg.inv(cov)
             if res.eig_ratio < self.weak_eig_ratio:
                 # weakly constrained: directions whose information is below ``weak_ratio`` of
                 # the largest carry the bias of the model's edges rather than information; drop
