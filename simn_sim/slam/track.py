@@ -40,6 +40,11 @@ class TrackResult:
     rms: float
 
 
+def _info(sigma_rot: float, sigma_trans: float) -> np.ndarray:
+    """(6, 6) diagonal information of a pose increment, (omega, v) order: rad and m sigmas."""
+    return np.diag([1 / sigma_rot**2] * 3 + [1 / sigma_trans**2] * 3)
+
+
 class Tracker:
     """Pose prediction and frame-to-local-frame registration (see the module docstring)."""
 
@@ -51,10 +56,10 @@ class Tracker:
         # a tracking registration is fused as weakly constrained below the strict (revisit)
         # registration's degeneracy ratio; it fails only below the tracking one
         self.weak_eig_ratio = cfg.registration.degeneracy_ratio
-        sr, st = np.radians(cfg.prior_sigma_rot_deg), cfg.prior_sigma_trans
-        self._cv_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
-        sr, st = np.radians(cfg.odom_prior_sigma_rot_deg), cfg.odom_prior_sigma_trans
-        self._odom_info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+        self._cv_info = _info(np.radians(cfg.prior_sigma_rot_deg), cfg.prior_sigma_trans)
+        self._odom_info = _info(
+            np.radians(cfg.odom_prior_sigma_rot_deg), cfg.odom_prior_sigma_trans
+        )
         self.hist: list[tuple[float, np.ndarray]] = []  # (t, T_anchor_cam) of the last two
         self.last_prior: np.ndarray | None = None
         self._rms_ema: float | None = None  # running inlier RMS of the registrations
@@ -231,12 +236,9 @@ class Tracker:
         c = self.cfg
         if c.odom_prior_sigma_rot_per_unit == 0 and c.odom_prior_sigma_trans_per_m == 0:
             return self._odom_info
-        d = inv_T(self.last_prior) @ prior
-        ang = float(np.linalg.norm(se3_log(d)[:3]))
-        dist = float(np.linalg.norm(d[:3, 3]))
+        dist, ang = pose_error(self.last_prior, prior)
         sr = np.radians(c.odom_prior_sigma_rot_deg) + c.odom_prior_sigma_rot_per_unit * (ang + dist)
-        st = c.odom_prior_sigma_trans + c.odom_prior_sigma_trans_per_m * dist
-        return np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+        return _info(sr, c.odom_prior_sigma_trans + c.odom_prior_sigma_trans_per_m * dist)
 
     def track(self, pts: np.ndarray, T_pred: np.ndarray, prior: np.ndarray | None) -> TrackResult:
         """Register ``pts`` starting from ``T_pred`` (anchor coordinates)."""
