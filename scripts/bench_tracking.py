@@ -21,6 +21,10 @@ of folders without a camera.yaml (the real TUM clips).
         /tmp/simn_slam_seqs/desk_d435i --tum9
     MUJOCO_GL=egl .venv/bin/python scripts/bench_tracking.py ../shared/data/tum_fr1_rpy_last150 \
         --camera fr1 --map learned --open3d-model
+
+``--variant NAME JSON`` (repeatable) adds runs of ours with other front-end settings on the same
+frames, e.g. ``--variant prior_only '{"mapper": {"decoder": {"residual": false}}}'`` or
+``--variant points '{"preset": "point_tracking", "map_kind": "points"}'``.
 """
 
 from __future__ import annotations
@@ -212,8 +216,28 @@ def main() -> int:
     ap.add_argument(
         "--open3d-model", action="store_true", help="also Open3D frame to model (dense SLAM)"
     )
+    ap.add_argument(
+        "--variant",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("NAME", "JSON"),
+        help="also ours with this SlamConfig (JSON as a slam YAML: a 'preset' key, default "
+        "learned_tracking, and nested changes); repeatable; a table of ATE per variant follows",
+    )
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
+    variants = []
+    for name, text in a.variant:
+        try:
+            changes = json.loads(text)
+        except json.JSONDecodeError as e:
+            ap.error(f"--variant {name}: not valid JSON ({e})")
+        if not isinstance(changes, dict):
+            ap.error(f"--variant {name}: expected a JSON object, got {text!r}")
+        variants.append(
+            (name, load_slam_config(None, default_preset="learned_tracking", **changes))
+        )
     _open3d()
     jobs = [(f, a.camera) for f in a.folders]
     if a.tum9 and TUM9.is_dir():
@@ -255,6 +279,12 @@ def main() -> int:
                 open3d_model_rejected_frames=m_fail,
                 ate_ratio_ours_over_open3d_model=s_ate / m_ate if m_ate > 0 else float("nan"),
             )
+        for name, vcfg in variants:
+            v_traj, v_track, _ = run_ours(seq, folder, odom, vcfg)
+            row.setdefault("variants", {})[name] = {
+                "ate_cm": 100 * ate_rpe(v_traj, gt)["ate_rmse_m"],
+                "track_ms_median": float(np.median(v_track)),
+            }
         rows.append(row)
         print(json.dumps(row))
     print()
@@ -274,6 +304,19 @@ def main() -> int:
             f"{r['open3d_ms_median']:.0f} / {'-' if m_ms is None else f'{m_ms:.0f}'} | "
             f"{r['ours_track_ms_over_paper_40ms']:.2f} |"
         )
+    if variants:
+        print()
+        print("| sequence | variant | ATE (cm) | track ms median |")
+        print("|---|---|---|---|")
+        for r in rows:
+            print(
+                f"| {r['sequence']} | {a.map} (the run's own) | {r['ours_ate_cm']:.2f} | "
+                f"{r['ours_track_ms_median']:.0f} |"
+            )
+            for name, v in r["variants"].items():
+                print(
+                    f"| {r['sequence']} | {name} | {v['ate_cm']:.2f} | {v['track_ms_median']:.0f} |"
+                )
     if a.json:
         a.json.write_text(json.dumps(rows, indent=2))
     return 0
