@@ -35,9 +35,17 @@ from simn_sim.slam.record import read_base
 from simn_sim.tracking.registration import register
 
 
-def evaluate(folder: Path, config: Path | None, every: int, start: int, cm: float, deg: float):
+def evaluate(
+    folder: Path,
+    config: Path | None,
+    every: int,
+    start: int,
+    cm: float,
+    deg: float,
+    camera: str | None = None,
+):
     cfg = load_slam_config(config, track_max_correction_m=1e-9, revisits=False)
-    seq = read_tum(folder)
+    seq = read_tum(folder, camera)
     if seq[0].T_world_cam is None:
         raise SystemExit(f"{folder}: needs groundtruth.txt")
     slam = SimnSlam(cfg, seq.intrinsics, read_base(folder))
@@ -86,6 +94,7 @@ def main() -> int:
     ap.add_argument("--start", type=int, default=6, help="first checked frame")
     ap.add_argument("--perturb-cm", type=float, default=1.0)
     ap.add_argument("--perturb-deg", type=float, default=0.5)
+    ap.add_argument("--camera", default=None, help="fr1|fr2|fr3 for folders without camera.yaml")
     a = ap.parse_args()
     print(f"{a.tum}: maps at the true poses; perturbation {a.perturb_cm} cm, {a.perturb_deg} deg")
     print(
@@ -94,7 +103,7 @@ def main() -> int:
     )
     print("|---|---|---|---|---|---|---|")
     for c in a.configs:
-        r = evaluate(a.tum, c, a.every, a.start, a.perturb_cm, a.perturb_deg)
+        r = evaluate(a.tum, c, a.every, a.start, a.perturb_cm, a.perturb_deg, a.camera)
         print(
             f"| {c.stem} | {r['checks']} | {r['sdf_at_truth_mm']:.2f} | {r['valid_fraction']:.2f} "
             f"| {r['lm_err_mm_median']:.2f} / {r['lm_err_mm_p90']:.2f} "
