@@ -33,20 +33,15 @@ import numpy as np
 from simn_sim.agents.base import register_agent
 from simn_sim.agents.guidance import topo_subgoal
 from simn_sim.agents.recovery import BumpDetector, drive_to, escape, nearest_free
+from simn_sim.agents.routes import field_route, make_planner, squeezed_checker, tree_edges
 from simn_sim.agents.simn_config import SimnAgentConfig
 from simn_sim.config import ConfigError
 from simn_sim.geometry.paths import path_length
 from simn_sim.geometry.se3 import inv_T, planar_T, yaw_of
-from simn_sim.planning import (
-    PathFollower,
-    goal_vector_rrt_star,
-    uniform_rrt_star,
-)
-from simn_sim.planning.collision import CollisionChecker
+from simn_sim.planning import PathFollower
 from simn_sim.planning.costmap import CostMap
 from simn_sim.planning.gridpath import grid_shortest_path
-from simn_sim.planning.smoothing import push_from_obstacles, shortcut_path
-from simn_sim.semantics import OBSTACLE
+from simn_sim.planning.smoothing import push_from_obstacles
 from simn_sim.world import WorldModel, make_world
 
 
@@ -172,20 +167,7 @@ class SimnAgent:
             start = alt if alt is not None else xy
         if not (checker.is_free(start[None])[0] and checker.is_free(goal[None])[0]):
             return None
-        if self.cfg.planner == "goal_vector":
-            planner = goal_vector_rrt_star(
-                checker, self.cfg.rrt, self.cfg.goal_vector, None, self.rng
-            )
-        else:
-            lo = np.minimum(xy, goal) - self.cfg.window
-            hi = np.maximum(xy, goal) + self.cfg.window
-            b = checker.obstacle_bounds()
-            if b is not None:
-                lo = np.minimum(lo, [b[0], b[1]])
-                hi = np.maximum(hi, [b[2], b[3]])
-            planner = uniform_rrt_star(
-                checker, (lo[0], lo[1], hi[0], hi[1]), self.cfg.rrt, self.rng
-            )
+        planner = make_planner(self.cfg, checker, xy, goal, self.rng)
         planner.begin(start, goal)
         return PlanJob(planner, xy.copy(), start, goal)
 
@@ -210,12 +192,7 @@ class SimnAgent:
                 path = np.vstack([job.xy, path])
             if path is not None and scheduled and not checker.path_free(path[1:]):
                 path = None  # the map grew across it while it was grown over several steps
-            tree = job.planner.tree
-            if tree is not None and len(tree) > 1:
-                par = np.asarray(tree.parent[: len(tree)])
-                ok = par >= 0
-                xy_t = np.asarray(tree.xy[: len(tree)])
-                self.tree_edges = np.stack([xy_t[ok], xy_t[par[ok]]], axis=1)
+            self.tree_edges = tree_edges(job.planner)
         self.since_plan = 0
         if self.cfg.judge:
             self._judge(path, xy, scheduled)
@@ -250,26 +227,6 @@ class SimnAgent:
             self._best_ctg, self._best_ctg_step = self._ctg, self.steps
         return cm
 
-    def _field_route(self, cm: CostMap, xy: np.ndarray) -> tuple[np.ndarray | None, float]:
-        """The cost map's own route from ``xy``, shortcut and pushed from obstacles where that
-        does not make it dearer; and its cost."""
-        raw = cm.path(xy)
-        if raw is None:
-            return None, math.inf
-        c_raw = cm.path_cost(raw)
-        # shortcuts only where the planning margin holds (a tight doorway keeps the map's
-        # cells, which run through its middle), then pushed from obstacles
-        p = shortcut_path(raw, self.obstacles.planning, self.rng, iterations=30)
-        if self.cfg.path_clearance > 0:
-            p = push_from_obstacles(
-                p,
-                self.obstacles.safety,
-                self.cfg.path_clearance,
-                also_from=self.obstacles.shadow_model(),
-            )
-        c = cm.path_cost(p)
-        return (p, c) if c <= 1.05 * c_raw else (raw, c_raw)
-
     def _judge(self, rrt_path: np.ndarray | None, xy: np.ndarray, scheduled: bool) -> None:
         """Choose among the fresh RRT* plan, the cost map's route and the committed path, all
         judged on the same cost-to-go map (see :mod:`simn_sim.planning.costmap`)."""
@@ -277,7 +234,7 @@ class SimnAgent:
             self._squeeze_route(xy)
             return
         cm = self._costmap(xy)
-        field, c_field = self._field_route(cm, xy)
+        field, c_field = field_route(cm, xy, self.obstacles, self.cfg.path_clearance, self.rng)
         c_rrt = cm.path_cost(rrt_path) if rrt_path is not None else math.inf
         if not math.isfinite(c_field) and not math.isfinite(c_rrt) and self.cfg.squeeze > 0:
             if self._squeeze_route(xy, start=True):
@@ -309,13 +266,7 @@ class SimnAgent:
         margin soft). ``start``: enter squeezing when a route exists. True when a route was
         taken."""
         if start:
-            c = self.obstacles.safety.cfg
-            sq = CollisionChecker(
-                c.replace(robot_radius=c.robot_radius - self.cfg.squeeze, margin=0.0)
-            )
-            pts = self.obstacles.model_points(self.world.frames)
-            if len(pts):
-                sq.update(pts, np.full(len(pts), OBSTACLE, np.int8))
+            sq = squeezed_checker(self.obstacles, self.world.frames, self.cfg.squeeze)
         else:
             sq = self._squeezed
         known = self.world.frames.floor_points_world()[:, :2]
