@@ -75,6 +75,10 @@ CONFIGS = {
     # the default with the training chunk joined after the next frame's tracking (it tracks
     # against the map before that chunk): the chunk overlaps perception and tracking too
     "simn (learned map, training latency 1)": {"slam": {"train_latency": 1}},
+    # the EWC consolidation's diagonal Fisher by per-sample outer products (not torch.func)
+    "simn (learned map, outer-product Fisher)": {
+        "slam": {"mapper": {"training": {"fisher_method": "outer"}}}
+    },
     # the point-store ablation (agent simn_points): no learning, nearest-point-plane SDF
     "simn, point store (ablation)": {"slam": {"preset": "points_agent"}},
     "simn, odometry pose (ablation)": {"pose_source": "odometry"},

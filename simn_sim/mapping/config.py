@@ -221,6 +221,9 @@ class TrainingConfig(Config):
     frame_replay_share: float = 0.5
     use_ewc: bool = True
     fisher_samples: int = 2048
+    # how the diagonal Fisher is computed (losses.diagonal_fisher): "vmap" (torch.func) or
+    # "outer" (per-sample outer products of the linear layers; the same quantity, ~4-8x faster)
+    fisher_method: Literal["vmap", "outer"] = "vmap"
     # Divide each consolidated Fisher by its mean, so ewc_weight is a stiffness relative to
     # the average parameter importance rather than tied to the loss scale.
     ewc_normalize: bool = True

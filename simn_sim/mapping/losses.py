@@ -71,9 +71,21 @@ def diagonal_fisher(
     labels: torch.Tensor,
     loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     chunk: int = 1024,
+    method: str = "vmap",
 ) -> dict[str, torch.Tensor]:
     """Mean squared per-sample gradient of ``loss_fn(module(*inputs_i), label_i)`` w.r.t. each
-    parameter (empirical diagonal Fisher), with ``torch.func`` (vmap over samples)."""
+    parameter (empirical diagonal Fisher).
+
+    ``method``: ``"vmap"`` (``torch.func``, any module) or ``"outer"``: one batched backward,
+    each linear layer's per-sample weight gradient the outer product of its output gradient and
+    its input (so the squared one is ``(delta^2)^T (a^2)``); the same quantity, for modules whose
+    parameters all belong to ``nn.Linear`` layers and whose samples do not interact, with
+    ``loss_fn`` a mean over samples. Other modules fall back to ``"vmap"``.
+    """
+    if method not in ("vmap", "outer"):
+        raise ValueError(f"diagonal_fisher: method must be 'vmap' or 'outer', got {method!r}")
+    if method == "outer" and _all_linear(module):
+        return _outer_fisher(module, inputs, labels, loss_fn, chunk)
     from torch.func import functional_call, grad, vmap
 
     params = {k: v.detach() for k, v in module.named_parameters()}
@@ -90,4 +102,56 @@ def diagonal_fisher(
         gs = g_fn(params, *(x[s : s + chunk] for x in inputs), labels[s : s + chunk])
         for k in acc:
             acc[k] += (gs[k] ** 2).sum(0)
+    return {k: v / max(n, 1) for k, v in acc.items()}
+
+
+def _all_linear(module: nn.Module) -> bool:
+    """Whether every parameter of ``module`` is the weight or bias of an ``nn.Linear``."""
+    lin = {id(p) for m in module.modules() if isinstance(m, nn.Linear) for p in m.parameters()}
+    return all(id(p) in lin for p in module.parameters())
+
+
+def _outer_fisher(
+    module: nn.Module,
+    inputs: tuple[torch.Tensor, ...],
+    labels: torch.Tensor,
+    loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    chunk: int,
+) -> dict[str, torch.Tensor]:
+    """:func:`diagonal_fisher` by per-sample outer products (see there)."""
+    names = {id(p): k for k, p in module.named_parameters()}
+    seen: list[tuple[nn.Linear, torch.Tensor, torch.Tensor]] = []
+
+    def hook(m: nn.Module, args: tuple, out: torch.Tensor) -> None:
+        seen.append((m, args[0].detach(), out))
+
+    lins = [m for m in module.modules() if isinstance(m, nn.Linear)]
+    handles = [m.register_forward_hook(hook) for m in lins]
+    acc = {k: torch.zeros_like(p) for k, p in module.named_parameters()}
+    n = labels.shape[0]
+    try:
+        for s in range(0, n, chunk):
+            seen.clear()
+            with torch.enable_grad():
+                out = module(*(x[s : s + chunk] for x in inputs))
+                m_ = out.shape[0]
+                # loss_fn is a mean over samples: m_ x it is the sum of the per-sample losses,
+                # whose gradient w.r.t. a layer's output row is that sample's alone
+                total = loss_fn(out, labels[s : s + chunk]) * m_
+                deltas = torch.autograd.grad(total, [o for _, _, o in seen])
+            for (m, a, _), d in zip(seen, deltas, strict=True):
+                a2 = a.reshape(m_, -1, a.shape[-1])
+                d2 = d.reshape(m_, -1, d.shape[-1])
+                if a2.shape[1] == 1:  # one row per sample: the outer products summed at once
+                    gw2 = (d2[:, 0] ** 2).T @ (a2[:, 0] ** 2)
+                    gb2 = (d2[:, 0] ** 2).sum(0)
+                else:  # several rows per sample (per-neighbour decoding): sum, then square
+                    gw2 = (torch.einsum("nro,nri->noi", d2, a2) ** 2).sum(0)
+                    gb2 = (d2.sum(1) ** 2).sum(0)
+                acc[names[id(m.weight)]] += gw2
+                if m.bias is not None:
+                    acc[names[id(m.bias)]] += gb2
+    finally:
+        for h in handles:
+            h.remove()
     return {k: v / max(n, 1) for k, v in acc.items()}

@@ -287,7 +287,11 @@ class ImplicitMap:
             inputs = self._decoder_inputs(X, *self._gather(idx))
         sigma = self.cfg.training.sigma
         fisher = diagonal_fisher(
-            self.decoder, inputs, S, lambda out, y: bce_sdf_loss(out, y, sigma)
+            self.decoder,
+            inputs,
+            S,
+            lambda out, y: bce_sdf_loss(out, y, sigma),
+            method=self.cfg.training.fisher_method,
         )
         if self.cfg.training.ewc_normalize:
             mean = torch.cat([v.reshape(-1) for v in fisher.values()]).mean().clamp(min=1e-30)

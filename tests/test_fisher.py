@@ -1,0 +1,49 @@
+"""The EWC consolidation's diagonal Fisher by per-sample outer products (``fisher_method:
+outer``) equals the one from ``torch.func`` (vmap over samples), for both decodings."""
+
+import pytest
+import torch
+
+from simn_sim.mapping.config import DecoderConfig
+from simn_sim.mapping.decoder import Decoder
+from simn_sim.mapping.losses import bce_sdf_loss, diagonal_fisher
+
+
+@pytest.mark.parametrize("decoding", ["interpolated", "per_neighbor"])
+def test_outer_product_fisher_equals_the_vmap_fisher(decoding):
+    g = torch.Generator().manual_seed(0)
+    dec = Decoder(DecoderConfig(geometric_prior=True, decoding=decoding), generator=g)
+    with torch.no_grad():
+        for p in dec.parameters():  # leave the prior's zero last layer
+            p.add_(0.1 * torch.randn(p.shape, generator=g))
+    n, k = 700, 5
+    if decoding == "interpolated":
+        shapes = [(n, 8), (n, 3), (n, 3)]
+        w, prior = torch.ones(n), 0.02 * torch.randn(n, generator=g)
+    else:
+        shapes = [(n, k, 8), (n, k, 3), (n, k, 3)]
+        w = torch.softmax(torch.randn(n, k, generator=g), 1)
+        prior = 0.02 * torch.randn(n, k, generator=g)
+    inputs = tuple(torch.randn(s, generator=g) for s in shapes) + (w, prior)
+    labels = 0.05 * torch.randn(n, generator=g)
+
+    def loss(out, y):
+        return bce_sdf_loss(out, y, 0.02)
+
+    ref = diagonal_fisher(dec, inputs, labels, loss, chunk=256)
+    got = diagonal_fisher(dec, inputs, labels, loss, chunk=256, method="outer")
+    assert ref.keys() == got.keys()
+    for name in ref:
+        assert float(ref[name].abs().max()) > 0, name
+        torch.testing.assert_close(
+            got[name], ref[name], rtol=1e-4, atol=1e-6 * float(ref[name].abs().max())
+        )
+
+
+def test_unknown_fisher_method_is_rejected():
+    dec = Decoder(DecoderConfig())
+    x = torch.zeros(2, 8)
+    with pytest.raises(ValueError, match="method must be"):
+        diagonal_fisher(
+            dec, (x, x[:, :3], x[:, :3]), torch.zeros(2), lambda o, y: o.sum(), method="svd"
+        )
