@@ -47,3 +47,29 @@ def test_unknown_fisher_method_is_rejected():
         diagonal_fisher(
             dec, (x, x[:, :3], x[:, :3]), torch.zeros(2), lambda o, y: o.sum(), method="svd"
         )
+
+
+def test_a_layer_used_twice_falls_back_to_the_vmap_fisher():
+    """Shared weights: each sample's gradient is a sum of outer products, so the outer-product
+    shortcut does not apply and the vmap Fisher is returned."""
+    g = torch.Generator().manual_seed(1)
+
+    class Twice(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.lin = torch.nn.Linear(3, 3)
+
+        def forward(self, x):
+            return self.lin(torch.tanh(self.lin(x))).sum(-1)
+
+    mod = Twice()
+    x = torch.randn(50, 3, generator=g)
+    y = 0.05 * torch.randn(50, generator=g)
+
+    def loss(out, t):
+        return bce_sdf_loss(out, t, 0.05)
+
+    ref = diagonal_fisher(mod, (x,), y, loss)
+    got = diagonal_fisher(mod, (x,), y, loss, method="outer")
+    for name in ref:
+        torch.testing.assert_close(got[name], ref[name])

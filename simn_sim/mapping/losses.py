@@ -85,7 +85,9 @@ def diagonal_fisher(
     if method not in ("vmap", "outer"):
         raise ValueError(f"diagonal_fisher: method must be 'vmap' or 'outer', got {method!r}")
     if method == "outer" and _all_linear(module):
-        return _outer_fisher(module, inputs, labels, loss_fn, chunk)
+        fisher = _outer_fisher(module, inputs, labels, loss_fn, chunk)
+        if fisher is not None:
+            return fisher
     from torch.func import functional_call, grad, vmap
 
     params = {k: v.detach() for k, v in module.named_parameters()}
@@ -117,8 +119,10 @@ def _outer_fisher(
     labels: torch.Tensor,
     loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     chunk: int,
-) -> dict[str, torch.Tensor]:
-    """:func:`diagonal_fisher` by per-sample outer products (see there)."""
+) -> dict[str, torch.Tensor] | None:
+    """:func:`diagonal_fisher` by per-sample outer products (see there); None when a linear
+    layer runs more than once in a forward pass (shared weights: a sample's gradient is then a
+    sum of outer products, squared only after summing)."""
     names = {id(p): k for k, p in module.named_parameters()}
     seen: list[tuple[nn.Linear, torch.Tensor, torch.Tensor]] = []
 
@@ -138,6 +142,8 @@ def _outer_fisher(
                 # loss_fn is a mean over samples: m_ x it is the sum of the per-sample losses,
                 # whose gradient w.r.t. a layer's output row is that sample's alone
                 total = loss_fn(out, labels[s : s + chunk]) * m_
+                if len({id(m) for m, _, _ in seen}) != len(seen):
+                    return None
                 deltas = torch.autograd.grad(total, [o for _, _, o in seen])
             for (m, a, _), d in zip(seen, deltas, strict=True):
                 a2 = a.reshape(m_, -1, a.shape[-1])
