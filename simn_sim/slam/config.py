@@ -385,18 +385,19 @@ class SlamConfig(Config):
         SDF. It meets the ATE targets of desk and corridor (docs/slam.md), but registration costs
         ~0.3-1.6 s per frame on this CPU, so it is not the default."""
         d = cls().to_dict()
+        # the gradient-norm validity floor on the learned map: 0.5 made points flip between
+        # valid and invalid where the blended planes of noisy normals meet, so LM's cost jumped
+        # and it stopped early. The revisit checks register against the same learned SDF and
+        # take the same floor (with 0.5, 7-8 % of an observation had no valid SDF against 2-3 %
+        # on the point store, so no revisit of TUM fr1/rpy reached the 0.85 inlier share;
+        # docs/slam.md)
+        floor = 0.3
         d.update(
             track_sdf="implicit",
             implicit_reuse_neighbors=0.0,
             implicit_max_dist=0.03,
-            # the gradient-norm validity floor of tracking on the learned map: 0.5 made points
-            # flip between valid and invalid where the blended planes of noisy normals meet, so
-            # LM's cost jumped and it stopped early
-            track_registration={**d["track_registration"], "grad_norm_min": 0.3},
-            # the revisit checks register against the same learned SDF: the same floor (with
-            # 0.5, 7-8 % of an observation had no valid SDF against 2-3 % on the point store,
-            # so no revisit of TUM fr1/rpy reached the 0.85 inlier share; docs/slam.md)
-            registration={**d["registration"], "grad_norm_min": 0.3},
+            track_registration={**d["track_registration"], "grad_norm_min": floor},
+            registration={**d["registration"], "grad_norm_min": floor},
             mapper=tracking_mapper_config().to_dict(),
         )
         return cls.from_dict(_merge(d, changes))
