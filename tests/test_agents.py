@@ -51,6 +51,46 @@ def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
     np.testing.assert_allclose(frames.current.obstacles.points, hidden, atol=1e-6)
 
 
+@pytest.mark.parametrize("carve_frames, kept", [(2, True), (0, False)])
+def test_carving_reaches_older_frames_when_told(env, carve_frames, kept):
+    """A ghost in front of the seen wall, stored by the first of four local frames: carving the
+    two most recent frames keeps it, carving every frame (``carve_frames`` 0) removes it; a
+    point behind the wall stays either way, and a frame whose points all lie deeper than the
+    view is left alone."""
+    obs, info = env.reset(seed=0)
+    agent = make_agent("simn", env.unwrapped, {"slam": {"stores": {"carve_frames": carve_frames}}})
+    agent.reset(obs, info)
+    frames = agent.world.frames
+    frame = agent.world.slam.perception(obs["rgb"], obs["depth"])
+    T_wc = agent.world.pose @ agent.world.T_base_cam
+    for t in (1.0, 2.0, 3.0):  # three more local frames at the same pose
+        frames.close(frames.current_id)
+        frames.open(T_wc, t)
+    assert len(frames) == 4
+    h, w = frame.depth.shape
+    v, u = h // 2, w // 2
+    z = float(frame.depth[v, u])
+    assert z > 0.8
+    k = int(
+        np.flatnonzero(
+            (frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride)
+        )[0]
+    )
+    ray = frame.points[k] / z
+    T_first_cam = inv_T(frames.topo.anchor(0)) @ T_wc
+    ghost = transform_points(T_first_cam, (ray * (z - 0.5))[None].astype(np.float64))
+    hidden = transform_points(T_first_cam, (ray * (z + 0.5))[None].astype(np.float64))
+    far = transform_points(T_first_cam, (ray * (frame.depth.max() + 1.0))[None].astype(np.float64))
+    for st in frames.states.values():
+        st.obstacles.remove(np.ones(len(st.obstacles), bool))
+    frames.states[0].obstacles.add(np.concatenate([ghost, hidden]))
+    frames.states[1].obstacles.add(far)
+    assert frames.carve(frame, T_wc) == (0 if kept else 1)
+    expect = np.concatenate([ghost, hidden]) if kept else hidden
+    np.testing.assert_allclose(frames.states[0].obstacles.points, expect, atol=1e-6)
+    np.testing.assert_allclose(frames.states[1].obstacles.points, far, atol=1e-6)
+
+
 @pytest.mark.parametrize(
     "pose_source,world_type", [("slam", SlamWorld), ("odometry", OdometryWorld)]
 )

@@ -51,9 +51,11 @@ MOVED_KEYS: dict[str, str] = {
 @dataclasses.dataclass(frozen=True)
 class StoreConfig(Config):
     """Per-local-frame obstacle / floor point stores (anchor coordinates) and free-space carving:
-    stored obstacle points of the ``carve_frames`` most recent local frames that the current depth
-    image sees *through* (its depth there exceeds the point's by ``carve_margin``) are removed,
-    so a person who walked away does not stay an obstacle."""
+    stored obstacle points of the ``carve_frames`` most recent local frames (0: every local
+    frame) that the current depth image sees *through* (its depth there exceeds the point's by
+    ``carve_margin``) are removed, so a person who walked away does not stay an obstacle, nor
+    an older frame's copy of a wall that drift between the frames' anchors put into a
+    doorway."""
 
     obstacle_voxel: float = 0.05
     floor_voxel: float = 0.10
@@ -66,7 +68,7 @@ class StoreConfig(Config):
         for f in ("obstacle_voxel", "floor_voxel", "carve_margin"):
             v = getattr(self, f)
             require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
-        require(self.carve_frames >= 1, n, "carve_frames", "must be >= 1")
+        require(self.carve_frames >= 0, n, "carve_frames", "must be >= 0 (0: every frame)")
 
 
 def _merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:

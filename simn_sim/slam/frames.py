@@ -84,6 +84,12 @@ class PointFrameMap:
         return P, np.zeros((len(P), 0), np.float32), np.zeros(len(P), np.int64)
 
 
+def _cam_row(T: np.ndarray, i: int, P: np.ndarray) -> np.ndarray:
+    """Coordinate ``i`` of (N, 3) points ``P`` under ``T``, float64."""
+    R = T[i, :3].astype(np.float64)
+    return P[:, 0] * R[0] + P[:, 1] * R[1] + P[:, 2] * R[2] + float(T[i, 3])
+
+
 @dataclasses.dataclass
 class FrameState:
     """Everything of one local frame (anchor coordinates)."""
@@ -113,6 +119,8 @@ class LocalFrames:
         # per frame: (version, points, labels) of the last debug() (recorders ask every step)
         self._debug_cache: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._floor_cache: tuple[tuple, np.ndarray] | None = None
+        # per frame: (obstacle store version, centre, radius) of its points (carve)
+        self._bounds_cache: dict[int, tuple[int, np.ndarray, float]] = {}
 
     def __len__(self) -> int:
         return len(self.states)
@@ -205,34 +213,66 @@ class LocalFrames:
         st.floor.add(Pa[frame.labels == FLOOR])
 
     def carve(self, frame: Frame, T_world_cam: np.ndarray) -> int:
-        """Remove stored obstacle points of the recent frames that ``frame`` sees through;
-        returns how many were removed."""
+        """Remove stored obstacle points of the recent frames (``stores.carve_frames``; 0: every
+        local frame) that ``frame`` sees through; returns how many were removed. A frame whose
+        points all lie too deep for the view to see past them, or all behind the camera, is
+        skipped on its bounding sphere (the same points are removed as without the test)."""
         zimg, s, intr = frame.depth, frame.stride, frame.intrinsics
         hh, ww = zimg.shape
         sc = self.cfg.stores
         T_cam_world = inv_T(T_world_cam)
+        zmax = float(zimg.max()) if zimg.size else 0.0
+        min_depth = self.cfg.perception.min_depth
+        ids = sorted(self.states)
         removed = 0
-        for fid in sorted(self.states)[-sc.carve_frames :]:
+        for fid in ids[-sc.carve_frames :] if sc.carve_frames > 0 else ids:
             st = self.states[fid]
             if len(st.obstacles) == 0:
                 continue
             T = T_cam_world @ self.topo.anchor(fid)
-            pc = transform_points(T, st.obstacles.points.astype(np.float64))
-            z = pc[:, 2]
-            front = z > self.cfg.perception.min_depth
-            u = np.round((intr.fx * pc[:, 0] / np.where(front, z, 1) + intr.cx) / s).astype(int)
-            v = np.round((intr.fy * pc[:, 1] / np.where(front, z, 1) + intr.cy) / s).astype(int)
-            inside = front & (u >= 0) & (u < ww) & (v >= 0) & (v < hh)
+            centre, radius = self._bounds(fid, st)
+            cz = float(T[2, :3] @ centre + T[2, 3])
+            if cz - radius + sc.carve_margin >= zmax or cz + radius <= min_depth:
+                continue  # no point can be seen through: all deeper than the view, or behind
+            # camera coordinates row by row (three products per coordinate: cheaper than a
+            # (N, 3) x (3, 3) product); z first, and x, y only for the points the view could
+            # see through: in front of the camera and shallower than its deepest reading less
+            # the margin
+            P = st.obstacles.points
+            zq = _cam_row(T, 2, P)
+            cand = np.flatnonzero((zq > min_depth) & (zq + sc.carve_margin < zmax))
+            if len(cand) == 0:
+                continue
+            Q, z = P[cand], zq[cand]
+            u = np.round((intr.fx * _cam_row(T, 0, Q) / z + intr.cx) / s).astype(np.int64)
+            v = np.round((intr.fy * _cam_row(T, 1, Q) / z + intr.cy) / s).astype(np.int64)
+            inside = (u >= 0) & (u < ww) & (v >= 0) & (v < hh)
             zo = np.zeros(len(z))
             zo[inside] = zimg[v[inside], u[inside]]
             through = inside & (zo > 0) & (zo > z + sc.carve_margin)
             if through.any():
-                st.obstacles.remove(through)
+                mask = np.zeros(len(P), bool)
+                mask[cand[through]] = True
+                st.obstacles.remove(mask)
                 removed += int(through.sum())
         if removed:
             self._obst_cache = None
         self.n_carved += removed
         return removed
+
+    def _bounds(self, fid: int, st: FrameState) -> tuple[np.ndarray, float]:
+        """(centre, radius) of a sphere holding frame ``fid``'s obstacle points (anchor
+        coordinates), kept per store version."""
+        b = self._bounds_cache.get(fid)
+        if b is None or b[0] != st.obstacles.version:
+            P = st.obstacles.points.astype(np.float64)
+            c = 0.5 * (P.min(axis=0) + P.max(axis=0))
+            b = self._bounds_cache[fid] = (
+                st.obstacles.version,
+                c,
+                float(np.sqrt(((P - c) ** 2).sum(axis=1).max())),
+            )
+        return b[1], b[2]
 
     # ---- outputs -----------------------------------------------------------------------------
     def _world_points(
