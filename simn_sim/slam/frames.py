@@ -84,12 +84,6 @@ class PointFrameMap:
         return P, np.zeros((len(P), 0), np.float32), np.zeros(len(P), np.int64)
 
 
-def _cam_row(T: np.ndarray, i: int, P: np.ndarray) -> np.ndarray:
-    """Coordinate ``i`` of (N, 3) points ``P`` under ``T``, float64."""
-    R = T[i, :3].astype(np.float64)
-    return P[:, 0] * R[0] + P[:, 1] * R[1] + P[:, 2] * R[2] + float(T[i, 3])
-
-
 @dataclasses.dataclass
 class FrameState:
     """Everything of one local frame (anchor coordinates)."""
@@ -232,28 +226,21 @@ class LocalFrames:
             T = T_cam_world @ self.topo.anchor(fid)
             centre, radius = self._bounds(fid, st)
             cz = float(T[2, :3] @ centre + T[2, 3])
-            if cz - radius + sc.carve_margin >= zmax or cz + radius <= min_depth:
-                continue  # no point can be seen through: all deeper than the view, or behind
-            # camera coordinates row by row (three products per coordinate: cheaper than a
-            # (N, 3) x (3, 3) product); z first, and x, y only for the points the view could
-            # see through: in front of the camera and shallower than its deepest reading less
-            # the margin
-            P = st.obstacles.points
-            zq = _cam_row(T, 2, P)
-            cand = np.flatnonzero((zq > min_depth) & (zq + sc.carve_margin < zmax))
-            if len(cand) == 0:
+            # no point can be seen through: all deeper than the view, or behind (1 um of slack
+            # keeps the test conservative against rounding)
+            if cz - radius + sc.carve_margin >= zmax + 1e-6 or cz + radius <= min_depth - 1e-6:
                 continue
-            Q, z = P[cand], zq[cand]
-            u = np.round((intr.fx * _cam_row(T, 0, Q) / z + intr.cx) / s).astype(np.int64)
-            v = np.round((intr.fy * _cam_row(T, 1, Q) / z + intr.cy) / s).astype(np.int64)
-            inside = (u >= 0) & (u < ww) & (v >= 0) & (v < hh)
+            pc = transform_points(T, st.obstacles.points.astype(np.float64))
+            z = pc[:, 2]
+            front = z > min_depth
+            u = np.round((intr.fx * pc[:, 0] / np.where(front, z, 1) + intr.cx) / s).astype(int)
+            v = np.round((intr.fy * pc[:, 1] / np.where(front, z, 1) + intr.cy) / s).astype(int)
+            inside = front & (u >= 0) & (u < ww) & (v >= 0) & (v < hh)
             zo = np.zeros(len(z))
             zo[inside] = zimg[v[inside], u[inside]]
             through = inside & (zo > 0) & (zo > z + sc.carve_margin)
             if through.any():
-                mask = np.zeros(len(P), bool)
-                mask[cand[through]] = True
-                st.obstacles.remove(mask)
+                st.obstacles.remove(through)
                 removed += int(through.sum())
         if removed:
             self._obst_cache = None
