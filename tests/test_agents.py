@@ -23,14 +23,8 @@ def env():
     e.close()
 
 
-def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
-    obs, info = env.reset(seed=0)
-    agent = make_agent("simn", env.unwrapped)
-    agent.reset(obs, info)
-    world = agent.world
-    frames = world.frames
-    frame = world.slam.perception(obs["rgb"], obs["depth"])
-    T_wc = world.pose @ world.T_base_cam
+def _centre_ray(frame) -> tuple[float, np.ndarray]:
+    """(depth, unit-depth ray) of the strided image's centre pixel (camera frame)."""
     h, w = frame.depth.shape
     v, u = h // 2, w // 2
     z = float(frame.depth[v, u])
@@ -40,7 +34,18 @@ def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
             (frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride)
         )[0]
     )
-    ray = frame.points[k] / z
+    return z, frame.points[k] / z
+
+
+def test_carving_removes_points_seen_through_and_keeps_visible_ones(env):
+    obs, info = env.reset(seed=0)
+    agent = make_agent("simn", env.unwrapped)
+    agent.reset(obs, info)
+    world = agent.world
+    frames = world.frames
+    frame = world.slam.perception(obs["rgb"], obs["depth"])
+    T_wc = world.pose @ world.T_base_cam
+    z, ray = _centre_ray(frame)
     T_anchor_cam = inv_T(frames.topo.anchor(frames.current_id)) @ T_wc
     ghost = transform_points(T_anchor_cam, (ray * (z - 0.5))[None].astype(np.float64))  # in front
     hidden = transform_points(T_anchor_cam, (ray * (z + 0.5))[None].astype(np.float64))  # behind
@@ -67,16 +72,7 @@ def test_carving_reaches_older_frames_when_told(env, carve_frames, kept):
         frames.close(frames.current_id)
         frames.open(T_wc, t)
     assert len(frames) == 4
-    h, w = frame.depth.shape
-    v, u = h // 2, w // 2
-    z = float(frame.depth[v, u])
-    assert z > 0.8
-    k = int(
-        np.flatnonzero(
-            (frame.pixels[:, 0] == v * frame.stride) & (frame.pixels[:, 1] == u * frame.stride)
-        )[0]
-    )
-    ray = frame.points[k] / z
+    z, ray = _centre_ray(frame)
     T_first_cam = inv_T(frames.topo.anchor(0)) @ T_wc
     ghost = transform_points(T_first_cam, (ray * (z - 0.5))[None].astype(np.float64))
     hidden = transform_points(T_first_cam, (ray * (z + 0.5))[None].astype(np.float64))
