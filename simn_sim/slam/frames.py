@@ -216,7 +216,6 @@ class LocalFrames:
         sc = self.cfg.stores
         T_cam_world = inv_T(T_world_cam)
         zmax = float(zimg.max()) if zimg.size else 0.0
-        min_depth = self.cfg.perception.min_depth
         ids = sorted(self.states)
         removed = 0
         for fid in ids[-sc.carve_frames :] if sc.carve_frames > 0 else ids:
@@ -224,15 +223,11 @@ class LocalFrames:
             if len(st.obstacles) == 0:
                 continue
             T = T_cam_world @ self.topo.anchor(fid)
-            centre, radius = self._bounds(fid, st)
-            cz = float(T[2, :3] @ centre + T[2, 3])
-            # no point can be seen through: all deeper than the view, or behind (1 um of slack
-            # keeps the test conservative against rounding)
-            if cz - radius + sc.carve_margin >= zmax + 1e-6 or cz + radius <= min_depth - 1e-6:
+            if self.beyond_view(fid, T, zmax):
                 continue
             pc = transform_points(T, st.obstacles.points.astype(np.float64))
             z = pc[:, 2]
-            front = z > min_depth
+            front = z > self.cfg.perception.min_depth
             u = np.round((intr.fx * pc[:, 0] / np.where(front, z, 1) + intr.cx) / s).astype(int)
             v = np.round((intr.fy * pc[:, 1] / np.where(front, z, 1) + intr.cy) / s).astype(int)
             inside = front & (u >= 0) & (u < ww) & (v >= 0) & (v < hh)
@@ -246,6 +241,18 @@ class LocalFrames:
             self._obst_cache = None
         self.n_carved += removed
         return removed
+
+    def beyond_view(self, fid: int, T_cam_anchor: np.ndarray, zmax: float) -> bool:
+        """Whether no obstacle point of frame ``fid`` can be seen through by a view at
+        ``T_cam_anchor`` whose deepest reading is ``zmax``: by the points' bounding sphere, all
+        of them deeper than ``zmax`` less the carve margin, or all behind the camera (1 um of
+        slack keeps the test conservative against rounding)."""
+        centre, radius = self._bounds(fid, self.states[fid])
+        cz = float(T_cam_anchor[2, :3] @ centre + T_cam_anchor[2, 3])
+        return (
+            cz - radius + self.cfg.stores.carve_margin >= zmax + 1e-6
+            or cz + radius <= self.cfg.perception.min_depth - 1e-6
+        )
 
     def _bounds(self, fid: int, st: FrameState) -> tuple[np.ndarray, float]:
         """(centre, radius) of a sphere holding frame ``fid``'s obstacle points (anchor
