@@ -51,17 +51,17 @@ MOVED_KEYS: dict[str, str] = {
 @dataclasses.dataclass(frozen=True)
 class StoreConfig(Config):
     """Per-local-frame obstacle / floor point stores (anchor coordinates) and free-space carving:
-    stored obstacle points of the ``carve_frames`` most recent local frames (0: every local
-    frame) that the current depth image sees *through* (its depth there exceeds the point's by
-    ``carve_margin``) are removed, so a person who walked away does not stay an obstacle, nor
-    an older frame's copy of a wall that drift between the frames' anchors put into a
-    doorway."""
+    stored obstacle points of the ``carve_frames`` most recent local frames (0, the default:
+    every local frame) that the current depth image sees *through* (its depth there exceeds
+    the point's by ``carve_margin``) are removed, so a person who walked away does not stay an
+    obstacle, nor an older frame's copy of a wall that drift between the frames' anchors put
+    into a doorway."""
 
     obstacle_voxel: float = 0.05
     floor_voxel: float = 0.10
     carve: bool = True
     carve_margin: float = 0.10
-    carve_frames: int = 2
+    carve_frames: int = 0
 
     def validate(self) -> None:
         n = type(self).__name__
