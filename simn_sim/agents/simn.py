@@ -198,7 +198,9 @@ class SimnAgent:
             self._judge(path, xy, scheduled)
             return
         if scheduled and self.path is not None:
-            if path is None or path_length(path) >= self.cfg.switch_gain * self._remaining(xy):
+            if path is None or path_length(path) >= self.cfg.switch_gain * path_length(
+                self._remaining_path(xy)
+            ):
                 return
         self._take(path)
 
@@ -285,6 +287,7 @@ class SimnAgent:
         return True
 
     def _remaining_path(self, xy: np.ndarray) -> np.ndarray:
+        """The current path from the robot on: ``xy``, then the path from its nearest vertex."""
         p = self.path
         k = int(np.argmin(np.hypot(*(p - xy).T)))
         return np.vstack([xy, p[k:]])
@@ -315,12 +318,6 @@ class SimnAgent:
             self._job = None
             self._finish_plan(job, xy, scheduled=True)
         self._plan_ms = (time.perf_counter() - t) * 1e3
-
-    def _remaining(self, xy: np.ndarray) -> float:
-        """Length of the current path from the robot's nearest vertex on."""
-        p = self.path
-        k = int(np.argmin(np.hypot(*(p - xy).T)))
-        return float(np.hypot(*(p[k] - xy))) + path_length(p[k:])
 
     # ---- act ---------------------------------------------------------------------------------
     def act(self, obs: dict, info: dict | None = None) -> np.ndarray:  # info ignored: no true pose
