@@ -1,7 +1,9 @@
 """Trace one closed-loop episode step by step, for finding why an agent fails.
 
 Writes ``OUT/<episode_id>.jsonl`` (one line per step: true and estimated pose in the world
-frame, the agent's state and route kind, the remaining planned length, the true and the
+frame, the estimate's position error ``pos_err`` against the pose of the observation it was
+made from (``true`` is the pose after the step's action, so ``est`` lags it by one step), the
+agent's state and route kind, the remaining planned length, the true and the
 agent's own distance to the goal, the action) and ``OUT/<episode_id>.png`` (the floor plan, the
 true and the estimated trajectory, the goal, and the planned path every ``--path-every`` steps).
 
@@ -46,6 +48,7 @@ def trace(
     while True:
         a = agent.act(obs, info)
         dbg = agent.debug()
+        T_obs = info["T_world_base"].copy()  # the pose the estimate of this step refers to
         obs, _, term, trunc, info = env.step(a)
         step += 1
         T_true = info["T_world_base"]
@@ -67,6 +70,7 @@ def trace(
         }
         if est is not None:
             row["dist_est"] = float(np.hypot(*(goal_w - est[:2, 3])))
+            row["pos_err"] = float(np.hypot(*(est[:2, 3] - T_obs[:2, 3])))
         rows.append(row)
         if path is not None and step % path_every == 0:
             P = np.c_[np.asarray(path)[:, :2], np.zeros(len(path)), np.ones(len(path))]
