@@ -417,7 +417,8 @@ class SlamConfig(Config):
         points spread over the normal directions, each point's k neighbours and their tables
         reused while it moved less than 5 mm (:class:`~simn_sim.mapping.tracking_sdf.TrackingSdf`);
         in tracking one rejected LM step ends the registration (the point store's preset: 2500
-        random points, 3 rejections). Cost and accuracy against the point store: docs/tracking.md
+        random points, 3 rejections). The wheel odometry is weighed against the registration
+        (``g1c30``, see below). Cost and accuracy against the point store: docs/tracking.md
         ("Tracking on the learned map") and docs/navigation.md."""
         d = cls.for_points_agent().to_dict()
         lt = cls.for_learned_tracking().to_dict()
