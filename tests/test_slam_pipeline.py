@@ -279,3 +279,40 @@ def test_learned_tracking_revisit_checks_use_the_tracking_validity_floor():
     # a change of the preset keeps them apart only when asked
     c2 = SlamConfig.for_learned_tracking(registration={"grad_norm_min": 0.4})
     assert c2.registration.grad_norm_min == 0.4 and c2.track_registration.grad_norm_min == 0.3
+
+
+def _base_tilt(T_plane_base):
+    """(z, roll, pitch) of a base pose relative to the plane's base: m, rad, rad."""
+    R = T_plane_base[:3, :3]
+    return T_plane_base[2, 3], np.arctan2(R[2, 1], R[2, 2]), -np.arcsin(np.clip(R[2, 0], -1, 1))
+
+
+def test_planar_poses_and_anchors_stay_on_the_floor_plane(desk):
+    """``planar``: the recorded base drives on the flat floor (its true z, roll and pitch are
+    those of the first frame); every estimate and every anchor keeps them exactly, x, y and
+    yaw are still tracked to the noise-free target, and a tilted pose is projected without
+    moving its x, y or yaw."""
+    from simn_sim.geometry.se3 import inv_T, make_T, planar_T, so3_exp, yaw_of
+
+    T_bc = read_base(desk)
+    cfg = SlamConfig(map_kind="points", planar=True)
+    slam, outs, gt = _run(desk, cfg)
+    T0b_true = gt[0][1] @ inv_T(T_bc)
+    for _, T in gt:  # the ground truth is planar: the constraint is exact here
+        z, r, p = _base_tilt(inv_T(T0b_true) @ T @ inv_T(T_bc))
+        assert abs(z) < 1e-6 and abs(r) < 1e-6 and abs(p) < 1e-6
+    T0b = outs[0].T_world_cam @ inv_T(T_bc)
+    poses = [o.T_world_cam for o in outs] + [slam.topo.anchor(f) for f in slam.topo.frame_ids]
+    for T in poses:
+        z, r, p = _base_tilt(inv_T(T0b) @ T @ inv_T(T_bc))
+        assert abs(z) < 1e-9 and abs(r) < 1e-9 and abs(p) < 1e-9, (z, r, p)
+    assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01
+    # the projection: 5 cm up and 2 deg of roll go, x, y and yaw stay
+    flat = planar_T(0.4, -0.3, 0.7)
+    tilted = flat @ make_T(so3_exp(np.array([np.radians(2.0), 0.0, 0.0])), np.array([0, 0, 0.05]))
+    T_in = T0b @ tilted @ T_bc
+    rel = inv_T(T0b) @ slam._planar(T_in) @ inv_T(T_bc)
+    np.testing.assert_allclose(rel, flat, atol=1e-12)
+    assert abs(yaw_of(rel) - 0.7) < 1e-12
+    with pytest.raises(ValueError, match="planar needs T_base_cam"):
+        SimnSlam(cfg, read_tum(desk).intrinsics, None)

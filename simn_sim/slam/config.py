@@ -246,6 +246,13 @@ class SlamConfig(Config):
     #   "auto": learned with map_kind implicit, geometric with points
     revisit_features: Literal["auto", "learned", "keypoints", "geometric"] = "auto"
     semantics: bool = True  # floor / obstacle labels (needs T_base_cam: the floor plane)
+    # the camera rides a ground robot on a flat floor: every pose estimate (and every anchor
+    # after a pose-graph correction) is projected onto the plane of the first frame's base
+    # (base z, roll and pitch those of the first frame; x, y and yaw kept). Needs T_base_cam.
+    # Off for a hand-held camera. Unconstrained, the agent's 6-DoF estimate drifted 0.41 m
+    # down and 1.8 deg in pitch over nav2-ref-005, so the low box ahead sank below the
+    # obstacle band of the planner's model and the robot drove into it (docs/tracking.md)
+    planar: bool = False
     # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
     # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and
     # SDF queries ~3-40x slower under load (OpenMP threads contending with other processes).
@@ -470,6 +477,7 @@ class SlamConfig(Config):
         d.update(
             max_track_points=2500,
             map_kind="points",
+            planar=True,
             revisit_checks_per_frame=1,
             revisit_registrations_per_frame=1,
             revisit_min_overlap=0.5,

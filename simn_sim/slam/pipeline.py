@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.geometry.se3 import inv_T, orthonormalize, transform_points
+from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
 from simn_sim.perception.frame import Perception
 from simn_sim.semantics import OBSTACLE
 from simn_sim.slam.config import SlamConfig
@@ -108,6 +108,9 @@ class SimnSlam:
         self.cfg = cfg = cfg or SlamConfig()
         self.intr = intrinsics
         self.T_base_cam = None if T_base_cam is None else check_pose(T_base_cam, "T_base_cam")
+        if cfg.planar and self.T_base_cam is None:
+            raise ValueError("SlamConfig.planar needs T_base_cam (the camera on the base)")
+        self._T_plane: np.ndarray | None = None  # planar: the first frame's base pose
         # the learned map's geometric prior takes its own (smoother) normals
         map_prior = cfg.map_kind == "implicit" and cfg.mapper.decoder.geometric_prior
         pc = cfg.perception.replace(
@@ -222,6 +225,8 @@ class SimnSlam:
         # track
         if first:
             T_world_cam = self._initial_pose(prior)
+            if self.cfg.planar:
+                self._T_plane = T_world_cam @ inv_T(self.T_base_cam)
             frames.open(T_world_cam, t)
             self.trigger.reset(T_world_cam)
             tr.start(t)
@@ -232,9 +237,13 @@ class SimnSlam:
             T_pred = orthonormalize(tr.predict(t, prior))
             T_pred_world = A @ T_pred
             res = tr.track(track_pts, T_pred, prior)
-            T_world_cam = orthonormalize(A @ res.T_anchor_cam)
+            T_world_cam = self._planar(orthonormalize(A @ res.T_anchor_cam))
         self.n_track_failures += int(not res.success)
-        T_anchor_cam = res.T_anchor_cam
+        T_anchor_cam = (
+            inv_T(frames.topo.anchor(frames.current_id)) @ T_world_cam
+            if self.cfg.planar and not first
+            else res.T_anchor_cam
+        )
         track_ms = (time.perf_counter() - t0) * 1e3
         self.sync()  # train_latency 1: the previous frame's training, joined after tracking
         # topology: local frames and revisits
@@ -251,6 +260,7 @@ class SimnSlam:
         elif not first:
             revisit_fid = self.revisits.step()
         if revisit_fid is not None:  # anchors moved: the pose through the current anchor
+            self._planar_anchors()
             T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         # integrate
         st = frames.current
@@ -266,6 +276,7 @@ class SimnSlam:
             # labels above do not depend on where the anchors are
             revisit_fid = self.revisits.on_open(frames.current_id, track_pts, T_world_cam)
             if revisit_fid is not None:
+                self._planar_anchors()
                 T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
@@ -319,6 +330,28 @@ class SimnSlam:
                 self.trainer.close()
         finally:
             self._give_back_threads()
+
+    def _planar(self, T_world_cam: np.ndarray) -> np.ndarray:
+        """``T_world_cam`` with its base projected onto the first frame's base plane
+        (``planar``: z, roll and pitch of the base relative to the first frame's base set to 0,
+        x, y and yaw kept); unchanged without ``planar``."""
+        if self._T_plane is None:
+            return T_world_cam
+        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
+        flat = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel))
+        return self._T_plane @ flat @ self.T_base_cam
+
+    def _planar_anchors(self) -> None:
+        """After a pose-graph correction (its arcs are 6-DoF): every anchor back onto the
+        base plane (``planar``); the anchors' version moves on so cached world points
+        follow."""
+        if self._T_plane is None:
+            return
+        topo = self.frames.topo
+        for fid in topo.frame_ids:
+            topo.frame(fid).T_world_anchor = self._planar(topo.anchor(fid))
+            topo.refresh(fid)
+        self.frames.anchors_version += 1
 
     def _initial_pose(self, prior: np.ndarray | None) -> np.ndarray:
         if prior is not None:
