@@ -167,9 +167,10 @@ def test_training_on_the_worker_thread_gives_the_synchronous_poses(latency):
     frames = [scene.render_depth(intr, T) for T in poses]
     trajs, jobs = [], []
     for async_ in (False, True):
-        cfg = SlamConfig.for_agent(
+        cfg = SlamConfig.for_agent(  # a camera without a base: no floor plane to keep
             train_async=async_,
             train_latency=latency,
+            planar=False,
             semantics=False,
             open_train_iters=3,
             train_iters=2,
@@ -209,7 +210,12 @@ def test_torch_threads_stay_held_while_a_chunk_runs_on_the_worker():
     try:
         torch.set_num_threads(2)
         cfg = SlamConfig.for_agent(
-            train_async=True, semantics=False, open_train_iters=2, train_iters=1, torch_threads=1
+            train_async=True,
+            planar=False,  # a camera without a base
+            semantics=False,
+            open_train_iters=2,
+            train_iters=1,
+            torch_threads=1,
         )
         slam = SimnSlam(cfg, intr)
         slam.process(0.1, None, depth)
@@ -222,7 +228,9 @@ def test_torch_threads_stay_held_while_a_chunk_runs_on_the_worker():
         slam.close()
         assert torch.get_num_threads() == 2
         # without a worker thread nothing runs beside the caller: given back at once
-        slam = SimnSlam(SlamConfig.for_agent(train_async=False, semantics=False), intr)
+        slam = SimnSlam(
+            SlamConfig.for_agent(train_async=False, planar=False, semantics=False), intr
+        )
         slam.process(0.1, None, depth)
         assert torch.get_num_threads() == 2
         slam.close()

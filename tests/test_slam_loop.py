@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -55,6 +56,32 @@ def test_loop_revisit_lowers_ate(tmp_path, per_frame):
     assert loops, "accepted revisits must leave loop arcs in the topological map"
     # the loop arcs connect the end of the sequence with its beginning
     assert any(min(i, j) <= 3 and max(i, j) >= st["local_frames"] - 4 for i, j, _, _ in loops)
+    before = ate_rpe(slam0.trajectory(), gt)["ate_rmse_m"]
+    after = ate_rpe(slam1.trajectory(), gt)["ate_rmse_m"]
+    assert after < before, (before, after)
+
+
+@pytest.mark.slow
+def test_planar_anchors_stay_on_the_floor_after_loop_closures(tmp_path):
+    """``planar`` with revisits: the pose graph's 6-DoF corrections are projected back onto the
+    base plane (every anchor and pose keeps the first base's z, roll and pitch), and the
+    closures still lower the ATE."""
+    from simn_sim.geometry.se3 import inv_T
+
+    folder = tmp_path / "loop"
+    record_sequence(folder, "loop", width=160, height=120, odom_noise=(0.1, 0.1))
+    base = SlamConfig(map_kind="points", planar=True)
+    slam0, gt = _run(folder, base.replace(revisits=False))
+    slam1, _ = _run(folder, base)
+    assert slam1.stats()["revisits_accepted"] >= 1, slam1.loop_log
+    T_bc = read_base(folder)
+    _, T_first = slam1.trajectory(corrected=False)[0]
+    T0b = T_first @ inv_T(T_bc)
+    poses = [T for _, T in slam1.trajectory()]
+    poses += [slam1.topo.anchor(f) for f in slam1.topo.frame_ids]
+    for T in poses:
+        rel = inv_T(T0b) @ T @ inv_T(T_bc)
+        assert abs(rel[2, 3]) < 1e-9 and np.abs(rel[2, :2]).max() < 1e-9, rel
     before = ate_rpe(slam0.trajectory(), gt)["ate_rmse_m"]
     after = ate_rpe(slam1.trajectory(), gt)["ate_rmse_m"]
     assert after < before, (before, after)
