@@ -111,6 +111,7 @@ class SimnSlam:
         if cfg.planar and self.T_base_cam is None:
             raise ValueError("SlamConfig.planar needs T_base_cam (the camera on the base)")
         self._T_plane: np.ndarray | None = None  # planar: the first frame's base pose
+        self._planar_runs = 0  # the pose-graph runs whose anchors were projected
         # the learned map's geometric prior takes its own (smoother) normals
         map_prior = cfg.map_kind == "implicit" and cfg.mapper.decoder.geometric_prior
         pc = cfg.perception.replace(
@@ -259,8 +260,8 @@ class SimnSlam:
             T_anchor_cam = np.eye(4)
         elif not first:
             revisit_fid = self.revisits.step()
-        if revisit_fid is not None:  # anchors moved: the pose through the current anchor
-            self._planar_anchors()
+        if self._planar_anchors() or revisit_fid is not None:
+            # anchors moved: the pose through the current anchor
             T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         # integrate
         st = frames.current
@@ -275,8 +276,7 @@ class SimnSlam:
             # the learned ranking matches the key points (and features) trained on it; the
             # labels above do not depend on where the anchors are
             revisit_fid = self.revisits.on_open(frames.current_id, track_pts, T_world_cam)
-            if revisit_fid is not None:
-                self._planar_anchors()
+            if self._planar_anchors() or revisit_fid is not None:
                 T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
@@ -341,17 +341,25 @@ class SimnSlam:
         flat = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel))
         return self._T_plane @ flat @ self.T_base_cam
 
-    def _planar_anchors(self) -> None:
-        """After a pose-graph correction (its arcs are 6-DoF): every anchor back onto the
-        base plane (``planar``); the anchors' version moves on so cached world points
-        follow."""
-        if self._T_plane is None:
-            return
-        topo = self.frames.topo
+    def _planar_anchors(self) -> bool:
+        """After a revisit check (a pose-graph run moves the anchors with 6-DoF arcs, also
+        when its robust loss then rejects the new arc): every anchor off the base plane back
+        onto it (``planar``); the anchors' version moves on so cached world points follow.
+        True when an anchor moved."""
+        topo, moved = self.frames.topo, False
+        if self._T_plane is None or topo.n_optimized == self._planar_runs:
+            return False
+        self._planar_runs = topo.n_optimized
         for fid in topo.frame_ids:
-            topo.frame(fid).T_world_anchor = self._planar(topo.anchor(fid))
-            topo.refresh(fid)
-        self.frames.anchors_version += 1
+            A = topo.anchor(fid)
+            P = self._planar(A)
+            if np.abs(P - A).max() > 1e-12:
+                topo.frame(fid).T_world_anchor = P
+                topo.refresh(fid)
+                moved = True
+        if moved:
+            self.frames.anchors_version += 1
+        return moved
 
     def _initial_pose(self, prior: np.ndarray | None) -> np.ndarray:
         if prior is not None:

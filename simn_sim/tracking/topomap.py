@@ -61,6 +61,7 @@ class TopoMap:
         self.graph = nx.Graph()
         self.desc_cfg = descriptor_cfg or DescriptorConfig()
         self._order: list[int] = []  # frame ids in the order they were added
+        self.n_optimized = 0  # pose-graph runs so far (each may move every anchor)
 
     # ------------------------------------------------------------------ nodes
     def add_frame(self, frame: LocalFrame, descriptor: FrameDescriptor | None = None) -> int:
@@ -211,6 +212,7 @@ class TopoMap:
         odom = [a for a in self.arcs("odom") if a[0] in comp]
         loops = [a for a in self.arcs("loop") if a[0] in comp]
         res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root)
+        self.n_optimized += 1
         for k, T in res.anchors.items():
             self.frame(k).T_world_anchor = T
             self.refresh(k)
