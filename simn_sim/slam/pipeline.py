@@ -111,7 +111,7 @@ class SimnSlam:
         if cfg.planar and self.T_base_cam is None:
             raise ValueError("SlamConfig.planar needs T_base_cam (the camera on the base)")
         self._T_plane: np.ndarray | None = None  # planar: the first frame's base pose
-        self._planar_runs = 0  # the pose-graph runs whose anchors were projected
+        self._planar_runs = 0  # the pose-graph runs seen by _graph_moved
         # the learned map's geometric prior takes its own (smoother) normals
         map_prior = cfg.map_kind == "implicit" and cfg.mapper.decoder.geometric_prior
         pc = cfg.perception.replace(
@@ -228,6 +228,7 @@ class SimnSlam:
             T_world_cam = self._initial_pose(prior)
             if self.cfg.planar:
                 self._T_plane = T_world_cam @ inv_T(self.T_base_cam)
+                frames.topo.anchor_constraint = self._planar  # pose-graph runs keep the plane
             frames.open(T_world_cam, t)
             self.trigger.reset(T_world_cam)
             tr.start(t)
@@ -241,9 +242,7 @@ class SimnSlam:
             T_world_cam = self._planar(orthonormalize(A @ res.T_anchor_cam))
         self.n_track_failures += int(not res.success)
         T_anchor_cam = (
-            inv_T(frames.topo.anchor(frames.current_id)) @ T_world_cam
-            if self.cfg.planar and not first
-            else res.T_anchor_cam
+            res.T_anchor_cam if first or self._T_plane is None else inv_T(A) @ T_world_cam
         )
         track_ms = (time.perf_counter() - t0) * 1e3
         self.sync()  # train_latency 1: the previous frame's training, joined after tracking
@@ -260,7 +259,7 @@ class SimnSlam:
             T_anchor_cam = np.eye(4)
         elif not first:
             revisit_fid = self.revisits.step()
-        if self._planar_anchors() or revisit_fid is not None:
+        if self._graph_moved() or revisit_fid is not None:
             # anchors moved: the pose through the current anchor
             T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         # integrate
@@ -276,7 +275,7 @@ class SimnSlam:
             # the learned ranking matches the key points (and features) trained on it; the
             # labels above do not depend on where the anchors are
             revisit_fid = self.revisits.on_open(frames.current_id, track_pts, T_world_cam)
-            if self._planar_anchors() or revisit_fid is not None:
+            if self._graph_moved() or revisit_fid is not None:
                 T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
@@ -341,25 +340,16 @@ class SimnSlam:
         flat = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel))
         return self._T_plane @ flat @ self.T_base_cam
 
-    def _planar_anchors(self) -> bool:
-        """After a revisit check (a pose-graph run moves the anchors with 6-DoF arcs, also
-        when its robust loss then rejects the new arc): every anchor off the base plane back
-        onto it (``planar``); the anchors' version moves on so cached world points follow.
-        True when an anchor moved."""
-        topo, moved = self.frames.topo, False
-        if self._T_plane is None or topo.n_optimized == self._planar_runs:
+    def _graph_moved(self) -> bool:
+        """``planar``: whether a pose-graph run moved the (projected) anchors since the last
+        call, also one whose robust loss then rejected the new arc; the anchors' version moves
+        on so cached world points follow."""
+        n = self.frames.topo.n_optimized
+        if self._T_plane is None or n == self._planar_runs:
             return False
-        self._planar_runs = topo.n_optimized
-        for fid in topo.frame_ids:
-            A = topo.anchor(fid)
-            P = self._planar(A)
-            if np.abs(P - A).max() > 1e-12:
-                topo.frame(fid).T_world_anchor = P
-                topo.refresh(fid)
-                moved = True
-        if moved:
-            self.frames.anchors_version += 1
-        return moved
+        self._planar_runs = n
+        self.frames.anchors_version += 1
+        return True
 
     def _initial_pose(self, prior: np.ndarray | None) -> np.ndarray:
         if prior is not None:

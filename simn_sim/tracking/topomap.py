@@ -62,6 +62,8 @@ class TopoMap:
         self.desc_cfg = descriptor_cfg or DescriptorConfig()
         self._order: list[int] = []  # frame ids in the order they were added
         self.n_optimized = 0  # pose-graph runs so far (each may move every anchor)
+        # applied to every optimised anchor before it is set (e.g. SimnSlam's floor plane)
+        self.anchor_constraint: Callable[[np.ndarray], np.ndarray] | None = None
 
     # ------------------------------------------------------------------ nodes
     def add_frame(self, frame: LocalFrame, descriptor: FrameDescriptor | None = None) -> int:
@@ -214,7 +216,8 @@ class TopoMap:
         res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root)
         self.n_optimized += 1
         for k, T in res.anchors.items():
-            self.frame(k).T_world_anchor = T
+            c = self.anchor_constraint
+            self.frame(k).T_world_anchor = T if c is None else c(T)
             self.refresh(k)
         # loop arcs the robust loss rejected leave the map (routing must not use them)
         rejected = {id(loops[m][2]) for m, ok in enumerate(res.loop_inliers) if not ok}
