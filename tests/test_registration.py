@@ -333,3 +333,40 @@ def test_kernel_point_sdf_keeps_slope_on_a_noisy_slab() -> None:
         PointCloudSDF(P, N, kernel=-1.0)
     with pytest.raises(ValueError, match="confidence"):
         PointCloudSDF(P, N, kernel=0.03, confidence=np.ones(3))
+
+
+def test_planar_registration_moves_only_on_the_floor_plane(points: np.ndarray) -> None:
+    """``up``: a pose perturbed on the floor plane (yaw about the world's z, x-y shift) is
+    recovered exactly; a pose lifted and tilted off it keeps its height and tilt (only yaw,
+    x and y move); the covariance has rank 3, spanned by the planar twists."""
+    from simn_sim.geometry.se3 import planar_T
+    from simn_sim.tracking.registration import planar_basis
+
+    up = np.array([0.0, 0.0, 1.0])  # the office scene's floor normal in its (map) frame
+    for k, (yaw, dx, dy) in enumerate([(6.0, 0.08, -0.05), (-9.0, -0.06, 0.07)]):
+        T_init = planar_T(dx, dy, np.radians(yaw)) @ T_TRUE
+        res = register(points, SCENE.sdf_and_grad, T_init, up=up)
+        assert res.success, res.reason
+        et, er = pose_error(res.pose, T_TRUE)
+        assert et < 1e-3 and np.degrees(er) < 0.05, (k, et, np.degrees(er))
+        sv = np.linalg.svd(res.covariance, compute_uv=False)
+        assert sv[2] > 1e-6 * sv[0] and sv[3] < 1e-9 * sv[0], sv  # rank 3
+        # in map (left) coordinates it lies in the planar twists' span
+        Ad = adjoint(res.pose)
+        Cm = Ad @ res.covariance @ Ad.T
+        B = planar_basis(up)
+        Bp = np.linalg.pinv(B)
+        np.testing.assert_allclose(B @ Bp @ Cm @ Bp.T @ B.T, Cm, atol=1e-9 * sv[0])
+    lift = se3_exp(np.array([np.radians(0.5), 0.0, 0.0, 0.0, 0.0, 0.01]))  # off the plane
+    T_init = planar_T(0.05, 0.03, np.radians(4.0)) @ T_TRUE @ lift
+    res = register(points, SCENE.sdf_and_grad, T_init, up=up)
+    assert res.success, res.reason
+    D = res.pose @ inv_T(T_init)  # the motion LM made, in map coordinates
+    assert pose_error(res.pose, T_init)[0] > 0.01  # it moved
+    np.testing.assert_allclose(D[:3, :3] @ up, up, atol=1e-9)  # a rotation about up only
+    np.testing.assert_allclose(res.pose[2, 3], T_init[2, 3], atol=1e-9)  # height kept
+    unconstrained = register(points, SCENE.sdf_and_grad, T_init)
+    assert pose_error(unconstrained.pose, T_TRUE)[0] < 2e-3  # 6 DoF goes back up to the truth
+    for bad in ([0.0, 0.0, 2.0], [np.nan, 0.0, 1.0], [0.0, 1.0]):
+        with pytest.raises(ValueError, match="up must be a finite unit 3-vector"):
+            register(points, SCENE.sdf_and_grad, T_TRUE, up=bad)

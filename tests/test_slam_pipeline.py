@@ -287,16 +287,19 @@ def _base_tilt(T_plane_base):
     return T_plane_base[2, 3], np.arctan2(R[2, 1], R[2, 2]), -np.arcsin(np.clip(R[2, 0], -1, 1))
 
 
-def test_planar_poses_and_anchors_stay_on_the_floor_plane(desk):
+@pytest.mark.parametrize("on_plane", [False, True])
+def test_planar_poses_and_anchors_stay_on_the_floor_plane(desk, on_plane):
     """``planar``: the recorded base drives on the flat floor (its true z, roll and pitch are
     those of the first frame); every estimate and every anchor keeps them exactly, x, y and
     yaw are still tracked to the noise-free target, and a tilted pose is projected without
-    moving its x, y or yaw."""
+    moving its x, y or yaw. ``planar_registration`` (``on_plane``): the same, registering on
+    the plane."""
     from simn_sim.geometry.se3 import inv_T, make_T, planar_T, so3_exp, yaw_of
 
     T_bc = read_base(desk)
-    cfg = SlamConfig(map_kind="points", planar=True)
+    cfg = SlamConfig(map_kind="points", planar=True, planar_registration=on_plane)
     slam, outs, gt = _run(desk, cfg)
+    assert (slam.tracker.B_cam is not None) == on_plane
     T0b_true = gt[0][1] @ inv_T(T_bc)
     for _, T in gt:  # the ground truth is planar: the constraint is exact here
         z, r, p = _base_tilt(inv_T(T0b_true) @ T @ inv_T(T_bc))
@@ -316,3 +319,7 @@ def test_planar_poses_and_anchors_stay_on_the_floor_plane(desk):
     assert abs(yaw_of(rel) - 0.7) < 1e-12
     with pytest.raises(ValueError, match="planar needs T_base_cam"):
         SimnSlam(cfg, read_tum(desk).intrinsics, None)
+    from simn_sim.config import ConfigError
+
+    with pytest.raises(ConfigError, match="planar_registration"):
+        SlamConfig(planar_registration=True)

@@ -253,6 +253,9 @@ class SlamConfig(Config):
     # down and 1.8 deg in pitch over nav2-ref-005, so the low box ahead sank below the
     # obstacle band of the planner's model and the robot drove into it (docs/tracking.md)
     planar: bool = False
+    # with planar: tracking registers and fuses on the plane (yaw, x, y; Tracker), not 6 DoF
+    # projected afterwards, which kept the x-y of a 6-DoF optimum that pitch had pulled
+    planar_registration: bool = False
     # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
     # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and
     # SDF queries ~3-40x slower under load (OpenMP threads contending with other processes).
@@ -334,6 +337,9 @@ class SlamConfig(Config):
         require(self.max_track_points >= 100, n, "max_track_points", "must be >= 100")
         require(self.train_every >= 1, n, "train_every", "must be >= 1")
         require(self.train_latency in (0, 1), n, "train_latency", "must be 0 or 1")
+        require(
+            self.planar or not self.planar_registration, n, "planar_registration", "needs planar"
+        )
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
         require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")

@@ -125,7 +125,7 @@ class SimnSlam:
         self.stride = self.perception.stride
         self.rng = np.random.default_rng(cfg.seed)
         self.frames = LocalFrames(cfg)
-        self.tracker = Tracker(cfg, self.frames, self.rng)
+        self.tracker = Tracker(cfg, self.frames, self.rng, self.T_base_cam)
         self.revisits = Revisits(cfg, self.frames, self.tracker)
         self.trigger = FrameTrigger(cfg.trigger)
         # the training chunk of a frame, joined by the next frame before it tracks

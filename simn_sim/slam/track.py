@@ -21,7 +21,7 @@ from simn_sim.geometry.voxel import voxel_mean
 from simn_sim.mapping.sdf_cache import SdfCache
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import LocalFrames
-from simn_sim.tracking.lie import constant_velocity_prior, se3_log
+from simn_sim.tracking.lie import adjoint, constant_velocity_prior, se3_log
 from simn_sim.tracking.pointsdf import PointCloudSDF
 from simn_sim.tracking.registration import register
 
@@ -48,7 +48,13 @@ def _info(sigma_rot: float, sigma_trans: float) -> np.ndarray:
 class Tracker:
     """Pose prediction and frame-to-local-frame registration (see the module docstring)."""
 
-    def __init__(self, cfg: SlamConfig, frames: LocalFrames, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        cfg: SlamConfig,
+        frames: LocalFrames,
+        rng: np.random.Generator,
+        T_base_cam: np.ndarray | None = None,
+    ) -> None:
         self.cfg = cfg
         self.frames = frames
         self.rng = rng
@@ -65,6 +71,16 @@ class Tracker:
         self._rms_ema: float | None = None  # running inlier RMS of the registrations
         # SDF caches of the learned maps tracked against (implicit_cache_voxel), per frame id
         self.caches: dict[int, SdfCache] = {}
+        # planar_registration: tracking moves the base only on its plane. The floor's normal in
+        # any (planar) camera frame, the map's anchor included, and the planar base twists
+        # (yaw rate, v_x, v_y) as camera-frame right twists
+        self.up_cam: np.ndarray | None = None
+        self.B_cam: np.ndarray | None = None
+        if cfg.planar and cfg.planar_registration:
+            if T_base_cam is None:
+                raise ValueError("planar_registration needs T_base_cam (the camera on the base)")
+            self.up_cam = np.asarray(T_base_cam, float)[2, :3].copy()
+            self.B_cam = adjoint(inv_T(np.asarray(T_base_cam, float)))[:, [2, 3, 4]]
 
     # ---- points ------------------------------------------------------------------------------
     def track_points(self, pts: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
@@ -249,20 +265,21 @@ class Tracker:
         res.T_anchor_cam = orthonormalize(res.T_anchor_cam)
         return res
 
-    def register_c2f(self, pts: np.ndarray, sdf, T_init: np.ndarray, reg_cfg):
-        """Register; on a kernel point SDF (with ``c2f``) coarse to fine: first with the widest
-        kernel, then from there with the noise-adaptive width (:attr:`kernel`)."""
+    def register_c2f(self, pts: np.ndarray, sdf, T_init: np.ndarray, reg_cfg, up=None):
+        """Register (on the plane with normal ``up``, map coordinates, when given); on a kernel
+        point SDF (with ``c2f``) coarse to fine: first with the widest kernel, then from there
+        with the noise-adaptive width (:attr:`kernel`)."""
         w = self.point_weights(pts)
         obj = getattr(sdf, "__self__", None)
         fine = self.kernel
         if not isinstance(obj, PointCloudSDF) or obj.kernel <= 0 or not self.cfg.c2f:
-            return register(pts, sdf, T_init, reg_cfg, weights=w)
+            return register(pts, sdf, T_init, reg_cfg, weights=w, up=up)
         obj.kernel = self.cfg.point_sdf_kernel
-        res = register(pts, sdf, T_init, reg_cfg, weights=w)
+        res = register(pts, sdf, T_init, reg_cfg, weights=w, up=up)
         if not res.success or fine >= obj.kernel:
             return res
         obj.kernel = fine
-        res2 = register(pts, sdf, res.pose, reg_cfg, weights=w)
+        res2 = register(pts, sdf, res.pose, reg_cfg, weights=w, up=up)
         return res2 if res2.success else res
 
     def _register(self, pts: np.ndarray, T_pred: np.ndarray, prior_info: np.ndarray) -> TrackResult:
@@ -279,7 +296,7 @@ class Tracker:
         cache = getattr(sdf, "__self__", None)
         if isinstance(cache, SdfCache):  # bake / refresh where the points are predicted
             cache.prepare(pts.astype(np.float64) @ init[:3, :3].T + init[:3, 3])
-        res = self.register_c2f(pts, sdf, init, self.reg_cfg)
+        res = self.register_c2f(pts, sdf, init, self.reg_cfg, up=self.up_cam)
         if not res.success:
             return TrackResult(T_pred, False, res.reason, res.iterations, fid, res.final_rms)
         T_est = orthonormalize(T_cur_f @ res.pose)
@@ -307,10 +324,16 @@ class Tracker:
         """Bayesian fusion in the camera-frame tangent at the prediction: the registration
         decides the well-constrained directions, the prediction the degenerate ones. Returns the
         fused pose, a reason string when the innovation gate rejects it, or None when the
-        registration's covariance is singular (``LinAlgError``: the registration is kept)."""
+        registration's covariance is singular (``LinAlgError``: the registration is kept).
+        With ``planar_registration`` in the planar twists' coordinates (``B_cam``): both poses
+        are on the plane, and so is the fused one."""
         delta = se3_log(inv_T(T_pred) @ T_est)
+        B = self.B_cam
         try:
             cov = 0.5 * (res.covariance + res.covariance.T) * self.cfg.track_cov_scale
+            if B is not None:  # (rank 3 in the planar twists): their coordinates
+                Bp = np.linalg.pinv(B)
+                cov, delta, prior_info = Bp @ cov @ Bp.T, Bp @ delta, B.T @ prior_info @ B
             info = np.linalg.inv(cov)
             if res.eig_ratio < self.weak_eig_ratio:
                 # weakly constrained: directions whose information is below ``weak_ratio`` of
@@ -318,7 +341,7 @@ class Tracker:
                 # them, the prior decides there. Rotations are scaled by the median depth so
                 # both blocks are in metres.
                 L = float(np.median(pts[:, 2])) if len(pts) else 1.0
-                D = np.diag([L] * 3 + [1.0] * 3)
+                D = np.diag([L] * 3 + [1.0] * 3) if B is None else np.diag([L, 1.0, 1.0])
                 Di = np.linalg.inv(D)
                 ev, V = np.linalg.eigh(Di @ (0.5 * (info + info.T)) @ Di)
                 ev = np.where(ev >= self.cfg.weak_ratio * ev.max(), ev, 0.0)
@@ -333,4 +356,4 @@ class Tracker:
             m = float(np.sqrt(max(fused @ prior_info @ fused, 0.0)))
             if m > gate:
                 return f"correction {m:.1f} sigma of the motion prior (gate {gate:g})"
-        return orthonormalize(T_pred @ se3_exp(fused))
+        return orthonormalize(T_pred @ se3_exp(fused if B is None else B @ fused))

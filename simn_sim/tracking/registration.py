@@ -11,6 +11,11 @@ point ``q = T p`` and ``p' = q - c``, ``q(dxi) ~ q + omega x p' + v``, so
 taken relative to the centroid (centring changes nothing but the conditioning of the 6x6 system
 and makes the degeneracy test meaningful). Step: ``dxi = -(J^T W J + lambda I)^-1 J^T W r``.
 
+With ``up`` (a ground robot on a flat floor) the steps are restricted to the plane: rotations
+about ``up`` and translations across it, ``dxi = B x`` with ``x`` in R^3 and ``B`` the (6, 3)
+basis of :func:`planar_basis`; the degeneracy test and the covariance are then those of ``x``
+(the covariance ``B cov_x B^T``, rank 3).
+
 The reported covariance is in gtsam's convention: right perturbation in the camera (body) frame,
 ``T_map_cam exp(delta)``, ``delta = (omega, v)``, rotation first.
 
@@ -206,6 +211,22 @@ def _inlier_rms(ev: dict, c: float) -> tuple[float, int]:
     return float(np.sqrt(np.mean(r[inl] ** 2))), int(inl.sum())
 
 
+def planar_basis(up: Any) -> np.ndarray:
+    """(6, 3) basis of the planar twists ``(omega, v)`` for the unit normal ``up`` of the plane:
+    the rotation about ``up``, then two translations across it. ValueError for a bad ``up``."""
+    n = np.asarray(up, dtype=np.float64)
+    if n.shape != (3,) or not np.isfinite(n).all() or abs(np.linalg.norm(n) - 1.0) > 1e-6:
+        raise ValueError(f"up must be a finite unit 3-vector, got {up!r}")
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1)
+    B = np.zeros((6, 3))
+    B[:3, 0] = n
+    B[3:, 1] = e1
+    B[3:, 2] = np.cross(n, e1)
+    return B
+
+
 def register(
     points_cam: Any,
     sdf_and_grad: SdfAndGrad,
@@ -214,12 +235,15 @@ def register(
     *,
     points_as: Literal["numpy", "torch"] = "numpy",
     weights: Any = None,
+    up: Any = None,
 ) -> RegistrationResult:
     """Register (N, 3) camera-frame points to the zero level set of ``sdf_and_grad``.
 
     T_init: (4, 4) initial ``T_map_cam`` (e.g. :func:`~simn_sim.tracking.lie.constant_velocity_prior`).
     ``weights``: optional (N,) prior weights >= 0 (e.g. the inverse variance of each point's
     depth noise relative to the best point), multiplied into the Geman-McClure IRLS weights.
+    ``up``: optional unit normal of the floor plane in map coordinates; the pose then moves only
+    on the plane (rotation about ``up``, translation across it; see the module docstring).
     Never raises for poor convergence: on failure it returns ``T_init`` with ``success=False``
     and a ``reason``. Raises ``ValueError`` only for bad input (shape, dtype, NaN, empty).
     """
@@ -238,6 +262,8 @@ def register(
             raise ValueError(f"weights must be >= 0, got a minimum of {W.min():g}")
         if not (W > 0).any():
             raise ValueError("weights are all zero")
+    B = None if up is None else planar_basis(up)
+    dof = 6 if B is None else 3
     ev_fn = _Evaluator(P, sdf_and_grad, cfg, points_as == "torch", W)
     fail_cov = np.eye(6) * cfg.fail_covariance
 
@@ -282,7 +308,10 @@ def register(
         accepted = False
         for _ in range(cfg.max_rejects):
             try:
-                dxi = -np.linalg.solve(H + lam * np.eye(6), b)
+                if B is None:
+                    dxi = -np.linalg.solve(H + lam * np.eye(6), b)
+                else:
+                    dxi = -B @ np.linalg.solve(B.T @ H @ B + lam * np.eye(3), B.T @ b)
             except np.linalg.LinAlgError:
                 lam *= cfg.lambda_up
                 continue
@@ -313,7 +342,8 @@ def register(
     rms, n_inl = _inlier_rms(ev, c)
     if not np.isfinite(H).all():
         return fail("non-finite normal equations", it, ev, rms0)
-    eig = np.linalg.eigvalsh(H)
+    Hx = H if B is None else B.T @ H @ B
+    eig = np.linalg.eigvalsh(Hx)
     ratio = float(eig[0] / eig[-1]) if eig[-1] > 0 else 0.0
     if ratio < cfg.degeneracy_ratio:
         return fail(f"degenerate geometry (eigenvalue ratio {ratio:.2e})", it, ev, rms0, ratio)
@@ -324,8 +354,8 @@ def register(
     if rms > cfg.max_rms_growth * rms0 and rms > cfg.gm_scale:
         return fail(f"residual blew up (RMS {rms0:.4f} -> {rms:.4f} m)", it, ev, rms0, ratio)
 
-    sigma2 = wrr / max(nv - 6, 1)
-    cov_c = sigma2 * np.linalg.inv(H)
+    sigma2 = wrr / max(nv - dof, 1)
+    cov_c = sigma2 * (np.linalg.inv(H) if B is None else B @ np.linalg.inv(Hx) @ B.T)
     Tc = np.eye(4)
     Tc[:3, 3] = cen
     A_inv = inv_T(inv_T(Tc) @ T)
