@@ -71,14 +71,14 @@ class StoreConfig(Config):
         require(self.carve_frames >= 0, n, "carve_frames", "must be >= 0 (0: every frame)")
 
 
-def _merge(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+def merge_changes(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
     """``base`` with ``changes`` applied; a nested mapping changes only the keys it names, at
     every depth (``mapper: {decoder: {residual: false}}`` keeps the preset's other decoder
     settings)."""
     out = dict(base)
     for k, v in changes.items():
         b = out.get(k)
-        out[k] = _merge(b, v) if isinstance(v, dict) and isinstance(b, dict) else v
+        out[k] = merge_changes(b, v) if isinstance(v, dict) and isinstance(b, dict) else v
     return out
 
 
@@ -391,113 +391,24 @@ class SlamConfig(Config):
 
     @classmethod
     def for_learned_tracking(cls, **changes: Any) -> SlamConfig:
-        """Tracking against the local frame's learned map (``track_sdf="implicit"``) with
-        :func:`tracking_mapper_config` (geometric prior + learned residual); ``changes`` as in
-        :meth:`for_agent`. The k neural-point neighbours are searched at every LM iteration
-        (reusing them while a point moved < 2 cm stopped LM early: maps at the true poses, noisy
-        desk, error after LM from a 1.7 cm / 0.9 deg offset 7.6 mm / 0.30 deg with reuse, 4.8 mm
-        / 0.09 deg without) and a point further than 3 cm along the surface from the map has no
-        SDF. It meets the ATE targets of desk and corridor (docs/slam.md), but registration costs
-        ~0.3-1.6 s per frame on this CPU, so it is not the default."""
-        d = cls().to_dict()
-        # the gradient-norm validity floor on the learned map: 0.5 made points flip between
-        # valid and invalid where the blended planes of noisy normals meet, so LM's cost jumped
-        # and it stopped early. The revisit checks register against the same learned SDF and
-        # take the same floor (with 0.5, 7-8 % of an observation had no valid SDF against 2-3 %
-        # on the point store, so no revisit of TUM fr1/rpy reached the 0.85 inlier share;
-        # docs/slam.md)
-        floor = 0.3
-        d.update(
-            track_sdf="implicit",
-            implicit_reuse_neighbors=0.0,
-            implicit_max_dist=0.03,
-            track_registration={**d["track_registration"], "grad_norm_min": floor},
-            registration={**d["registration"], "grad_norm_min": floor},
-            mapper=tracking_mapper_config().to_dict(),
-        )
-        return cls.from_dict(_merge(d, changes))
+        """:func:`simn_sim.slam.presets.learned_tracking_preset` (its docstring has the settings)."""
+        from simn_sim.slam import presets
+
+        return presets.learned_tracking_preset(**changes)
 
     @classmethod
     def for_agent(cls, **changes: Any) -> SlamConfig:
-        """The closed-loop agent's front-end (the ``simn`` default, preset ``agent``): the
-        paper's method, each local frame's map the learned implicit map, tracked against,
-        at the loop's cost. :meth:`for_points_agent` (perception, classifier, revisit budget)
-        with the settings of :meth:`for_learned_tracking` (k-NN by KD-trees), training on a
-        worker thread
-        (``train_async``) in short chunks every frame (6 iterations when a
-        frame opens, then 3 per frame on at most 4096 new samples: the agent's 15 per 5 frames
-        without a long step every 5th frame). Registration (tracking and revisit checks): 1500
-        points spread over the normal directions, each point's k neighbours and their tables
-        reused while it moved less than 5 mm (:class:`~simn_sim.mapping.tracking_sdf.TrackingSdf`);
-        in tracking one rejected LM step ends the registration (the point store's preset: 2500
-        random points, 3 rejections). The wheel odometry is weighed against the registration
-        (``g1c30``, see below). Cost and accuracy against the point store: docs/tracking.md
-        ("Tracking on the learned map") and docs/navigation.md."""
-        d = cls.for_points_agent().to_dict()
-        lt = cls.for_learned_tracking().to_dict()
-        m = lt["mapper"]
-        m["training"] = {**m["training"], "batch_size": 2048, "max_pending": 4096}
-        d.update(
-            map_kind="implicit",
-            track_sdf="implicit",
-            implicit_reuse_neighbors=0.005,
-            implicit_max_dist=lt["implicit_max_dist"],
-            max_track_points=1500,
-            track_point_selection="normals",
-            track_registration={
-                **d["track_registration"],
-                "grad_norm_min": lt["track_registration"]["grad_norm_min"],
-                "max_rejects": 1,
-            },
-            mapper=m,
-            train_async=True,
-            open_train_iters=6,
-            train_iters=3,
-            train_every=1,
-            # the wheel odometry weighed against the learned registration (`g1c30`): the
-            # odometry increment's sigma grows with the motion at the realistic sensing's
-            # drift rates (0.02 m per m, 0.02 rad per unit of motion), and the registration's
-            # covariance is scaled by 30 (its residuals are not independent). office_nav_v2:
-            # ATE 0.141 -> 0.095 m, 7 -> 4 collision events, success 54 -> 53/60 (paired
-            # -0.017 +- 0.074), docs/navigation.md
-            odom_prior_sigma_rot_deg=0.05,
-            odom_prior_sigma_trans=0.002,
-            odom_prior_sigma_rot_per_unit=0.02,
-            odom_prior_sigma_trans_per_m=0.02,
-            track_cov_scale=30.0,
-        )
-        return cls.from_dict(_merge(d, changes))
+        """:func:`simn_sim.slam.presets.agent_preset` (its docstring has the settings)."""
+        from simn_sim.slam import presets
+
+        return presets.agent_preset(**changes)
 
     @classmethod
     def for_points_agent(cls, **changes: Any) -> SlamConfig:
-        """The point-store ablation of the closed-loop agent (agent ``simn_points``, preset
-        ``points_agent``): each local frame's map is a surface voxel store whose SDF is the
-        nearest point's plane (no learning); fewer registration points and shorter training
-        bursts than the offline defaults (10 Hz at 320x240 frames on a CPU)."""
-        base = cls()
-        tr = dataclasses.replace(base.mapper.training, batch_size=2048)
-        # stereo depth noise grows with range^2: the floor band widens with range and far
-        # points are not obstacles (the values the agent's odometry ablation uses)
-        cl = dataclasses.replace(base.classifier, floor_tol_per_m2=0.01, max_obstacle_range=3.5)
-        d = base.to_dict()
-        d.update(
-            max_track_points=2500,
-            map_kind="points",
-            planar=True,
-            revisit_checks_per_frame=1,
-            revisit_registrations_per_frame=1,
-            revisit_min_overlap=0.5,
-            descriptor={**d["descriptor"], "max_points": 3000},
-            # nearest-point SDF: the kernel's 8-neighbour queries doubled tracking time in the
-            # loop (median 17 -> 47 ms per frame at 320x240, docs/navigation.md)
-            point_sdf_kernel=0.0,
-            open_train_iters=60,
-            train_iters=15,
-            train_every=5,
-            mapper={**d["mapper"], "training": tr.to_dict()},
-            classifier=cl.to_dict(),
-        )
-        return cls.from_dict(_merge(d, changes))
+        """:func:`simn_sim.slam.presets.points_agent_preset` (its docstring has the settings)."""
+        from simn_sim.slam import presets
+
+        return presets.points_agent_preset(**changes)
 
 
 __all__ = [
