@@ -46,14 +46,24 @@ EPISODES = ["nav-ref-002", "nav-ref-006", "nav-L1-004", "nav-L2-004", "nav-L3-00
 
 
 # ---- record ------------------------------------------------------------------------------------
-def record(out: Path, episodes: list[str], sensing: list[str], width: int, height: int) -> None:
+def record(
+    out: Path,
+    episodes: list[str],
+    sensing: list[str],
+    width: int,
+    height: int,
+    episode_file: Path | None = None,
+) -> None:
     import gymnasium as gym
 
     import simn_sim  # noqa: F401  (registers the envs)
     from simn_sim.agents import make_agent
 
-    spec = json.loads((REPO / "envs/episodes/office_nav_v1.json").read_text())
+    spec = json.loads((episode_file or REPO / "envs/episodes/office_nav_v1.json").read_text())
     by_id = {e["episode_id"]: e for e in spec["episodes"]}
+    unknown = sorted(set(episodes) - set(by_id))
+    if unknown:
+        raise SystemExit(f"episode id(s) not in the episode file: {unknown}")
     out.mkdir(parents=True, exist_ok=True)
     for sens in sensing:
         cfg = {"width": width, "height": height, "sensing": sens}
@@ -247,6 +257,9 @@ def main() -> int:
     r = sub.add_parser("record")
     r.add_argument("--out", type=Path, default=REPO / "runs" / "agent_slam")
     r.add_argument("--episodes", nargs="+", default=EPISODES)
+    r.add_argument(
+        "--episode-file", type=Path, default=None, help="default: envs/episodes/office_nav_v1.json"
+    )
     r.add_argument("--sensing", nargs="+", default=["realistic", "ideal"])
     r.add_argument("--width", type=int, default=320)
     r.add_argument("--height", type=int, default=240)
@@ -272,7 +285,7 @@ def main() -> int:
     p.add_argument("--per-step", type=Path, default=None, help="npz of per-step errors")
     a = ap.parse_args()
     if a.cmd == "record":
-        record(a.out, a.episodes, a.sensing, a.width, a.height)
+        record(a.out, a.episodes, a.sensing, a.width, a.height, a.episode_file)
         return 0
     import torch
 

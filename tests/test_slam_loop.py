@@ -33,8 +33,13 @@ def _run(folder, cfg):
         {},
         {"revisit_checks_per_frame": 1},
         {"revisit_registrations_per_frame": 1, "revisit_min_overlap": 0.5},
+        {
+            "revisit_registrations_per_frame": 1,
+            "revisit_min_overlap": 0.5,
+            "revisit_finish_checks": True,
+        },
     ],
-    ids=["at_once", "candidate_per_frame", "registration_per_frame"],
+    ids=["at_once", "candidate_per_frame", "registration_per_frame", "finish_checks"],
 )
 def test_loop_revisit_lowers_ate(tmp_path, per_frame):
     # the revisit candidates are checked all when the frame opens, one candidate per
@@ -52,6 +57,9 @@ def test_loop_revisit_lowers_ate(tmp_path, per_frame):
     st = slam1.stats()
     assert st["revisits_accepted"] >= 1, slam1.loop_log
     assert st["anchors_version"] == st["revisits_accepted"]
+    if per_frame.get("revisit_finish_checks"):
+        # a check is dropped only when a newer one replaces it while it waits
+        assert st["revisit_checks_dropped"] < len(slam1.loop_log), slam1.loop_log
     loops = slam1.topo.arcs("loop")
     assert loops, "accepted revisits must leave loop arcs in the topological map"
     # the loop arcs connect the end of the sequence with its beginning
@@ -62,15 +70,17 @@ def test_loop_revisit_lowers_ate(tmp_path, per_frame):
 
 
 @pytest.mark.slow
-def test_planar_anchors_stay_on_the_floor_after_loop_closures(tmp_path):
+@pytest.mark.parametrize("on_plane", [False, True], ids=["projected", "planar_registration"])
+def test_planar_anchors_stay_on_the_floor_after_loop_closures(tmp_path, on_plane):
     """``planar`` with revisits: the pose graph's 6-DoF corrections are projected back onto the
     base plane (every anchor and pose keeps the first base's z, roll and pitch), and the
-    closures still lower the ATE."""
+    closures still lower the ATE; also with tracking and revisit checks registering on the
+    plane (``planar_registration``)."""
     from simn_sim.geometry.se3 import inv_T
 
     folder = tmp_path / "loop"
     record_sequence(folder, "loop", width=160, height=120, odom_noise=(0.1, 0.1))
-    base = SlamConfig(map_kind="points", planar=True)
+    base = SlamConfig(map_kind="points", planar=True, planar_registration=on_plane)
     slam0, gt = _run(folder, base.replace(revisits=False))
     slam1, _ = _run(folder, base)
     assert slam1.stats()["revisits_accepted"] >= 1, slam1.loop_log

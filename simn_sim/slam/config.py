@@ -234,6 +234,9 @@ class SlamConfig(Config):
     # candidate's yaw search is spread over frames too; same result as checking at once, since
     # the observation and its pose, the frame's anchor, are kept); overrides the above
     revisit_registrations_per_frame: int = 0
+    # with revisit_registrations_per_frame: a check still running when the next frame opens
+    # is finished first (the new one waits, replacing an older waiting one) instead of dropped
+    revisit_finish_checks: bool = False
     # a revisit candidate is checked only when at least this fraction of the observation lies
     # in its region (x-y box) grown by loop.max_correction_m (the check's drift budget: with
     # less overlap the registration cannot pass it); 0: every descriptor candidate is checked
@@ -253,8 +256,9 @@ class SlamConfig(Config):
     # down and 1.8 deg in pitch over nav2-ref-005, so the low box ahead sank below the
     # obstacle band of the planner's model and the robot drove into it (docs/tracking.md)
     planar: bool = False
-    # with planar: tracking registers and fuses on the plane (yaw, x, y; Tracker), not 6 DoF
-    # projected afterwards, which kept the x-y of a 6-DoF optimum that pitch had pulled
+    # with planar: tracking and the revisit checks register on the plane (yaw, x, y; Tracker),
+    # and tracking fuses the odometry there, instead of projecting a 6-DoF optimum afterwards,
+    # which kept the x-y of an optimum that pitch and height had pulled
     planar_registration: bool = False
     # torch intra-op threads while the pipeline runs (restored afterwards); 0 leaves torch's
     # setting. 1 is the default: on the shared 2-core CPU, 2 threads made training ~30x and

@@ -396,6 +396,7 @@ class SimnSlam:
             "frames": self.n_frames,
             "local_frames": len(self.frames),
             "revisits_accepted": self.n_revisits,
+            "revisit_checks_dropped": self.revisits.n_dropped,
             "track_failures": self.n_track_failures,
             "map_frames_skipped": self.n_map_skipped,
             "carved_points": self.frames.n_carved,

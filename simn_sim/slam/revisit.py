@@ -51,6 +51,8 @@ class Revisits:
         # deferred checks: (frame, points, remaining candidates) or a running generator
         self._pending: tuple[int, np.ndarray, list[tuple[int, float]]] | None = None
         self._job: tuple[int, Any] | None = None
+        self._next: tuple[int, Any] | None = None  # revisit_finish_checks: the check waiting
+        self.n_dropped = 0  # deferred checks dropped before they finished
         f = cfg.revisit_features
         self.ranking = (
             f if f != "auto" else ("learned" if cfg.map_kind == "implicit" else "geometric")
@@ -72,7 +74,10 @@ class Revisits:
             sdf = st.loop_sdf[1].sdf_and_grad
         if sdf is None:
             raise RevisitError(f"frame {fid} has no map to register against")
-        return self.tracker.register_c2f(pts, sdf, T_init, self.cfg.registration)
+        # planar_registration: on the floor plane, as tracking (the anchors are on it)
+        return self.tracker.register_c2f(
+            pts, sdf, T_init, self.cfg.registration, up=self.tracker.up_cam
+        )
 
     def _key_points(self, fid: int) -> KeyPointIndex | None:
         """Frame ``fid``'s key points and learned features (anchor coordinates), indexed; None
@@ -231,17 +236,28 @@ class Revisits:
     def on_open(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
         """Frame ``fid`` opened with observation ``pts`` at ``T_world_cam`` (its anchor) and
         the observation integrated into its map: check now, or queue the check. Returns the
-        accepted frame when checked now and accepted."""
-        self._pending = self._job = None
+        accepted frame when checked now and accepted. A deferred check still running is
+        dropped, or with ``revisit_finish_checks`` finished first while the new one waits (a
+        newer frame's check replaces a waiting one)."""
+        finish = self.cfg.revisit_finish_checks and self.cfg.revisit_registrations_per_frame > 0
+        if not finish:
+            self.n_dropped += int(self._job is not None or self._pending is not None)
+            self._pending = self._job = None
         if not self.cfg.revisits or len(pts) < 100:
             return None
         if len(self.frames) <= self.cfg.loop.exclude_recent + 1:
             return None
-        cands = self._ranked = self.candidates(fid, pts, T_world_cam)
+        cands = self.candidates(fid, pts, T_world_cam)
         if self.cfg.revisit_registrations_per_frame > 0:
             if cands:
-                self._job = (fid, self._steps(fid, pts, T_world_cam, cands))
+                job = (fid, self._steps(fid, pts, T_world_cam, cands), cands)
+                if finish and self._job is not None:
+                    self.n_dropped += int(self._next is not None)
+                    self._next = job
+                else:
+                    self._job, self._ranked = job[:2], cands
             return None
+        self._ranked = cands
         if self.cfg.revisit_checks_per_frame > 0:
             if cands:
                 self._pending = (fid, pts, cands)
@@ -255,6 +271,9 @@ class Revisits:
             done, accepted = self._advance(fid, steps, self.cfg.revisit_registrations_per_frame)
             if done:
                 self._job = None
+                if self._next is not None:
+                    self._job, self._ranked = self._next[:2], self._next[2]
+                    self._next = None
             return accepted
         if self._pending is not None:
             fid, pts, queue = self._pending

@@ -78,6 +78,7 @@ class SlamWorld:
         return {
             "track_failures": s["track_failures"],
             "revisits": s["revisits_accepted"],
+            "revisit_checks_dropped": s["revisit_checks_dropped"],
             "local_frames": s["local_frames"],
             "map_frames_skipped": s["map_frames_skipped"],
             "carved_points": s["carved_points"],
