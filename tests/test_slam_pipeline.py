@@ -246,7 +246,8 @@ def test_odometry_prior_grows_with_the_motion():
 def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
     """Fused correction per tangent direction = info / (info + prior) x the registration's
     correction, info = 1 / (track_cov_scale x its variance): scaling the covariance by s moves
-    the estimate towards the prediction exactly so."""
+    the estimate towards the prediction exactly so; ``track_cov_scale_trans`` scales the
+    translation block alone."""
     from types import SimpleNamespace
 
     from simn_sim.geometry.se3 import se3_exp
@@ -259,12 +260,15 @@ def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
     prior_info = np.diag(1.0 / np.array([1e-6] * 3 + [2.5e-5] * 3))
     pts = np.random.default_rng(0).uniform(-1, 1, (100, 3)) + [0, 0, 2]
     res = SimpleNamespace(covariance=np.diag(var), eig_ratio=1.0)
-    for s in (1.0, 30.0):
-        cfg = SlamConfig(map_kind="points", track_cov_scale=s, gate_sigmas=0.0)
+    # (rotation scale, translation scale): track_cov_scale_trans 0 takes the rotation's
+    for s, st in ((1.0, 0.0), (30.0, 0.0), (30.0, 1000.0)):
+        cfg = SlamConfig(
+            map_kind="points", track_cov_scale=s, track_cov_scale_trans=st, gate_sigmas=0.0
+        )
         tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
         T_pred = np.eye(4)
         fused = tr._fuse(pts, T_pred, se3_exp(delta), res, prior_info)
-        info = 1.0 / (s * var)
+        info = 1.0 / (np.array([s] * 3 + [st or s] * 3) * var)
         expect = info / (info + np.diag(prior_info)) * delta
         np.testing.assert_allclose(se3_log(fused), expect, rtol=1e-6, atol=1e-12)
 

@@ -201,6 +201,9 @@ class SlamConfig(Config):
     # the registration's covariance (sigma^2 (J^T W J)^-1, which takes every residual as
     # independent) is multiplied by this in the fusion with the motion prior
     track_cov_scale: float = 1.0
+    # > 0: the factor on the translation block instead (the rotation block keeps
+    # track_cov_scale; the cross terms take the geometric mean); 0: track_cov_scale throughout
+    track_cov_scale_trans: float = 0.0
     weak_ratio: float = 1e-2  # information eigenvalues below this share of the largest: dropped
     prior_sigma_rot_deg: float = 1.5  # constant-velocity prediction uncertainty per frame
     prior_sigma_trans: float = 0.03  # m
@@ -370,6 +373,7 @@ class SlamConfig(Config):
         require(self.odom_prior_sigma_rot_deg > 0, n, "odom_prior_sigma_rot_deg", "must be > 0")
         require(self.odom_prior_sigma_trans > 0, n, "odom_prior_sigma_trans", "must be > 0")
         require(self.track_cov_scale > 0, n, "track_cov_scale", "must be > 0")
+        require(self.track_cov_scale_trans >= 0, n, "track_cov_scale_trans", "must be >= 0")
         for k in ("odom_prior_sigma_rot_per_unit", "odom_prior_sigma_trans_per_m"):
             require(getattr(self, k) >= 0, n, k, "must be >= 0")
         require(self.track_max_correction_deg > 0, n, "track_max_correction_deg", "must be > 0")

@@ -330,7 +330,13 @@ class Tracker:
         delta = se3_log(inv_T(T_pred) @ T_est)
         B = self.B_cam
         try:
-            cov = 0.5 * (res.covariance + res.covariance.T) * self.cfg.track_cov_scale
+            c = self.cfg
+            cov = 0.5 * (res.covariance + res.covariance.T)
+            if c.track_cov_scale_trans > 0:
+                k = np.sqrt([c.track_cov_scale] * 3 + [c.track_cov_scale_trans] * 3)
+                cov = cov * np.outer(k, k)
+            else:
+                cov = cov * c.track_cov_scale
             if B is not None:  # (rank 3 in the planar twists): their coordinates
                 Bp = np.linalg.pinv(B)
                 cov, delta, prior_info = Bp @ cov @ Bp.T, Bp @ delta, B.T @ prior_info @ B
