@@ -251,6 +251,10 @@ class SlamConfig(Config):
     #   "geometric": the frames' pooled descriptors (occupancy grid + shape histograms);
     #   "auto": learned with map_kind implicit, geometric with points
     revisit_features: Literal["auto", "learned", "keypoints", "geometric"] = "auto"
+    # what a revisit check registers against: "tracking" (the SDF tracking uses: the learned
+    # map with track_sdf implicit) or "points" (the frame's surface store, nearest point's
+    # plane, with the wider loop_sdf_max_dist)
+    revisit_sdf: Literal["tracking", "points"] = "tracking"
     semantics: bool = True  # floor / obstacle labels (needs T_base_cam: the floor plane)
     # the camera rides a ground robot on a flat floor: every pose estimate (and every anchor
     # after a pose-graph correction) is projected onto the plane of the first frame's base

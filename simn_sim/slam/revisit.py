@@ -63,7 +63,7 @@ class Revisits:
 
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the check: against frame ``fid``'s SDF."""
-        if self.cfg.track_sdf == "implicit":
+        if self.cfg.track_sdf == "implicit" and self.cfg.revisit_sdf == "tracking":
             sdf = self.tracker.sdf_of(fid, growth=0.0)
         else:  # a wider validity radius than tracking: the drift may be decimetres
             st = self.frames.states[fid]
