@@ -125,7 +125,8 @@ def agent_preset(**changes: Any) -> SlamConfig:
     reused while it moved less than 5 mm (:class:`~simn_sim.mapping.tracking_sdf.TrackingSdf`);
     in tracking one rejected LM step ends the registration (the point store's preset: 2500
     random points, 3 rejections). The wheel odometry is weighed against the registration
-    (``g1c30``, see below). Cost and accuracy against the point store: docs/tracking.md
+    (``g1c30``, see below). Revisit checks, ranked by the learned key-point features, verify
+    by registration against the frame's surface store (``revisit_sdf: points``). Cost and accuracy against the point store: docs/tracking.md
     ("Tracking on the learned map") and docs/navigation.md."""
     d = points_agent_preset().to_dict()
     lt = learned_tracking_preset().to_dict()
@@ -159,6 +160,11 @@ def agent_preset(**changes: Any) -> SlamConfig:
         odom_prior_sigma_rot_per_unit=0.02,
         odom_prior_sigma_trans_per_m=0.02,
         track_cov_scale=30.0,
+        # revisit checks (ranked by the learned key-point features) verified by registration
+        # against the frame's surface store: its loop arcs are more accurate than the learned
+        # SDF's. office_nav_v2: 56/60 against 55/60, ATE 0.084 against 0.094 m, 393 revisits
+        # (98 % correct) against 126 (docs/navigation.md)
+        revisit_sdf="points",
     )
     return SlamConfig.from_dict(merge_changes(d, changes))
 
