@@ -126,8 +126,9 @@ def agent_preset(**changes: Any) -> SlamConfig:
     in tracking one rejected LM step ends the registration (the point store's preset: 2500
     random points, 3 rejections). The wheel odometry is weighed against the registration
     (``g1c30``, see below). Revisit checks, ranked by the learned key-point features, verify
-    by registration against the frame's surface store (``revisit_sdf: points``). Cost and accuracy against the point store: docs/tracking.md
-    ("Tracking on the learned map") and docs/navigation.md."""
+    by registration against the frame's surface store (``revisit_sdf: points``). Cost and
+    accuracy against the point store: docs/tracking.md ("Tracking on the learned map") and
+    docs/navigation.md."""
     d = points_agent_preset().to_dict()
     lt = learned_tracking_preset().to_dict()
     m = lt["mapper"]

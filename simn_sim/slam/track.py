@@ -76,11 +76,13 @@ class Tracker:
         # (yaw rate, v_x, v_y) as camera-frame right twists
         self.up_cam: np.ndarray | None = None
         self.B_cam: np.ndarray | None = None
+        self._B_cam_pinv: np.ndarray | None = None  # its left inverse, for the fusion
         if cfg.planar and cfg.planar_registration:
             if T_base_cam is None:
                 raise ValueError("planar_registration needs T_base_cam (the camera on the base)")
             self.up_cam = np.asarray(T_base_cam, float)[2, :3].copy()
             self.B_cam = adjoint(inv_T(np.asarray(T_base_cam, float)))[:, [2, 3, 4]]
+            self._B_cam_pinv = np.linalg.pinv(self.B_cam)
 
     # ---- points ------------------------------------------------------------------------------
     def track_points(self, pts: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
@@ -338,7 +340,7 @@ class Tracker:
             else:
                 cov = cov * c.track_cov_scale
             if B is not None:  # (rank 3 in the planar twists): their coordinates
-                Bp = np.linalg.pinv(B)
+                Bp = self._B_cam_pinv
                 cov, delta, prior_info = Bp @ cov @ Bp.T, Bp @ delta, B.T @ prior_info @ B
             info = np.linalg.inv(cov)
             if res.eig_ratio < self.weak_eig_ratio:
