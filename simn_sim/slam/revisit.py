@@ -33,6 +33,7 @@ from simn_sim.tracking.localframes import unpack_feature_points
 from simn_sim.tracking.topomap import close_loop_steps, describe, verify_candidate_steps
 
 RANKINGS = ("learned", "keypoints", "geometric")
+Ranked = list[tuple[int, float]]  # (frame, score) candidates, best first
 
 
 class RevisitError(RuntimeError):
@@ -48,10 +49,11 @@ class Revisits:
         self.tracker = tracker
         self.n_accepted = 0
         self.log: list[dict[str, Any]] = []
-        # deferred checks: (frame, points, remaining candidates) or a running generator
-        self._pending: tuple[int, np.ndarray, list[tuple[int, float]]] | None = None
-        self._job: tuple[int, Any] | None = None
-        self._next: tuple[int, Any] | None = None  # revisit_finish_checks: the check waiting
+        # deferred checks, each with its ranked candidates (logged when it ends): (frame,
+        # points, remaining candidates, ranked) or (frame, running generator, ranked)
+        self._pending: tuple[int, np.ndarray, Ranked, Ranked] | None = None
+        self._job: tuple[int, Any, Ranked] | None = None
+        self._next: tuple[int, Any, Ranked] | None = None  # revisit_finish_checks: waiting
         self.n_dropped = 0  # deferred checks dropped before they finished
         f = cfg.revisit_features
         self.ranking = (
@@ -59,7 +61,6 @@ class Revisits:
         )
         # per frame: (key, KeyPointIndex) while the frame's map is unchanged
         self._index: dict[int, tuple[tuple, KeyPointIndex | None]] = {}
-        self._ranked: list[tuple[int, float]] = []  # the last check's ranked candidates
 
     def _loop_register(self, fid: int, pts: np.ndarray, T_init: np.ndarray):
         """Registration callback of the check: against frame ``fid``'s SDF."""
@@ -191,9 +192,12 @@ class Revisits:
             pose_graph_cfg=self.cfg.pose_graph,
         )
 
-    def _advance(self, fid: int, steps: Any, budget: int | None) -> tuple[bool, int | None]:
+    def _advance(
+        self, fid: int, steps: Any, budget: int | None, ranked: Ranked
+    ) -> tuple[bool, int | None]:
         """Run a check for at most ``budget`` registrations (None: to the end). Returns
-        (finished, accepted frame or None). A :class:`RevisitError` ends the check, logged."""
+        (finished, accepted frame or None). A :class:`RevisitError` ends the check, logged;
+        ``ranked``: the frame's ranked candidates, for the log."""
         n = 0
         try:
             while budget is None or n < budget:
@@ -209,7 +213,7 @@ class Revisits:
             {
                 "frame": fid,
                 "ranking": self.ranking,
-                "candidates": [[f, round(v, 4)] for f, v in self._ranked],
+                "candidates": [[f, round(v, 4)] for f, v in ranked],
                 "accepted": res.accepted,
                 # the loop arc: this frame's anchor in the accepted frame (None if none)
                 "T_i_j": None if res.T_i_j is None else np.asarray(res.T_i_j).tolist(),
@@ -230,8 +234,8 @@ class Revisits:
         self.frames.anchors_version += 1
         return True, int(res.accepted)
 
-    def _check_now(self, fid, pts, T_world_cam, cands: list) -> int | None:
-        return self._advance(fid, self._steps(fid, pts, T_world_cam, cands), None)[1]
+    def _check_now(self, fid, pts, T_world_cam, cands: list, ranked: list) -> int | None:
+        return self._advance(fid, self._steps(fid, pts, T_world_cam, cands), None, ranked)[1]
 
     def on_open(self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray) -> int | None:
         """Frame ``fid`` opened with observation ``pts`` at ``T_world_cam`` (its anchor) and
@@ -255,31 +259,30 @@ class Revisits:
                     self.n_dropped += int(self._next is not None)
                     self._next = job
                 else:
-                    self._job, self._ranked = job[:2], cands
+                    self._job = job
             return None
-        self._ranked = cands
         if self.cfg.revisit_checks_per_frame > 0:
             if cands:
-                self._pending = (fid, pts, cands)
+                self._pending = (fid, pts, cands, cands)
             return None
-        return self._check_now(fid, pts, T_world_cam, cands)  # logged even without candidates
+        # logged even without candidates
+        return self._check_now(fid, pts, T_world_cam, cands, cands)
 
     def step(self) -> int | None:
         """Advance a deferred check by this frame's budget; the accepted frame or None."""
         if self._job is not None:
-            fid, steps = self._job
-            done, accepted = self._advance(fid, steps, self.cfg.revisit_registrations_per_frame)
+            fid, steps, ranked = self._job
+            k = self.cfg.revisit_registrations_per_frame
+            done, accepted = self._advance(fid, steps, k, ranked)
             if done:
-                self._job = None
-                if self._next is not None:
-                    self._job, self._ranked = self._next[:2], self._next[2]
-                    self._next = None
+                self._job, self._next = self._next, None
             return accepted
         if self._pending is not None:
-            fid, pts, queue = self._pending
+            fid, pts, queue, ranked = self._pending
             k = self.cfg.revisit_checks_per_frame
-            self._pending = (fid, pts, queue[k:]) if len(queue) > k else None
-            accepted = self._check_now(fid, pts, self.frames.topo.anchor(fid), queue[:k])
+            self._pending = (fid, pts, queue[k:], ranked) if len(queue) > k else None
+            T = self.frames.topo.anchor(fid)
+            accepted = self._check_now(fid, pts, T, queue[:k], ranked)
             if accepted is not None:
                 self._pending = None
             return accepted
