@@ -119,3 +119,31 @@ def test_enclosed_goal_is_unreachable():
 def test_bad_config_is_named(field, value):
     with pytest.raises(ConfigError, match=field):
         CostMapConfig(**{field: value})
+
+
+def test_path_cost_applies_the_followers_exact_segment_test():
+    """A diagonal 0.1 m step (the cost map's grid step) near an obstacle's inflated disc can
+    pass a blocked cell between path_cost's 5 cm samples. The follower's exact traversal
+    (segments_free) refuses such a step, so path_cost calls it blocked too."""
+    planning, safety = checkers(np.array([[0.0, 0.0, 0.5]]))
+    cm = CostMap(
+        CostMapConfig(),
+        safety,
+        planning,
+        np.array([3.0, 0.0]),
+        np.array([-3.0, 0.0]),
+        known_everywhere(),
+    )
+    rng = np.random.default_rng(1)
+    grazing = free = 0
+    for _ in range(3000):
+        ang, r = rng.uniform(0, 2 * math.pi), rng.uniform(0.25, 0.32)
+        m = r * np.array([math.cos(ang), math.sin(ang)])
+        d = np.array([0.1, 0.1 if rng.random() < 0.5 else -0.1])
+        a, b = m - d / 2, m + d / 2
+        q = a + ((np.arange(3) + 0.5) / 3)[:, None] * (b - a)  # path_cost's samples of a step
+        exact = bool(safety.segments_free(a[None], b[None])[0])
+        assert math.isfinite(cm.path_cost(np.stack([a, b]))) == exact
+        grazing += int(not exact and safety.is_free(np.vstack([a, b, q])).all())
+        free += int(exact)
+    assert grazing > 0 and free > 0  # both kinds of step were judged

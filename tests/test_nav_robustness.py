@@ -180,3 +180,31 @@ def test_map_clearing_config_is_validated(ideal_env):
         make_agent("simn", ideal_env.unwrapped, {"clear_after": -1})
     with pytest.raises(ConfigError, match="bump_ttl"):
         make_agent("simn", ideal_env.unwrapped, {"obstacles": {"bump_ttl": -2}})
+
+
+def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):
+    """When the follower refuses even the fresh plan (its next metre cuts the safety model:
+    on nav2-L1-005 a cost-map route squeezed diagonally between two blocked cells and the robot
+    stood still for 369 steps), the agent looks around like with no route and clears the map
+    after ``clear_after`` such steps, instead of commanding zero velocity."""
+    from simn_sim.agents import make_agent
+    from simn_sim.planning.follower import FollowerCommand, PathFollower
+
+    obs, info = ideal_env.reset(seed=0)
+    cfg = {"initial_scan_deg": 0.0, "clear_after": 5, "obstacles": {"bump_ttl": 0}}
+    agent = make_agent("simn", ideal_env.unwrapped, cfg)
+    agent.reset(obs, info)
+    obs, *_ = ideal_env.step(agent.act(obs))
+    assert agent.path is not None and agent.state() == "following"
+
+    def refuse(self, pose):
+        return FollowerCommand(0.0, 0.0, "blocked", np.asarray(pose[:2]), 0.0, 1.0)
+
+    monkeypatch.setattr(PathFollower, "step", refuse)
+    actions = []
+    for _ in range(5):
+        a = agent.act(obs)
+        actions.append(a)
+        obs, *_ = ideal_env.step(a)
+    assert all(a[0] == 0.0 and a[1] > 0.5 for a in actions)  # turning in place, not standing
+    assert agent.counters()["map_clears"] == 1

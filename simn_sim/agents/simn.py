@@ -420,13 +420,15 @@ class SimnAgent:
             if self.path is None:
                 return self._no_route()
             cmd = self.follower.step(pose)
-        self._no_plan_steps = 0
         if cmd.status == "reached" and float(np.hypot(*(self.goal - xy))) > 0.2:
             self._plan(xy)  # reached a sub-goal: plan on towards the goal
             if self.path is not None:
                 cmd = self.follower.step(pose)
         if cmd.status in ("blocked", "stale"):
-            return np.array([0.0, 0.0], np.float32)
+            # the fresh plan is one the follower will not take (its next metre cuts the safety
+            # model): no route either. Standing still would show the map nothing new.
+            return self._no_route()
+        self._no_plan_steps = 0
         return np.array([cmd.v, cmd.w], np.float32)
 
     # ---- reporting ---------------------------------------------------------------------------

@@ -183,7 +183,7 @@ class CostMap:
 
     def path_cost(self, path: np.ndarray, spacing: float = 0.05) -> float:
         """Weighted length of ``path`` (M, 2) plus the cost-to-go from its last vertex (0 at the
-        goal); inf when any point of it is blocked under the safety margin."""
+        goal); inf when any segment of it passes a cell blocked under the safety margin."""
         p = np.asarray(path, float)
         if len(p) < 2:
             return self.cost_to_go(p[0]) if len(p) else math.inf
@@ -194,7 +194,9 @@ class CostMap:
         a = np.repeat(p[:-1], n, axis=0)
         d = np.repeat(seg, n, axis=0)
         q = a + t[:, None] * d
-        if not self.safety.is_free(q).all():
+        # the exact grid traversal (the path follower's test), not the samples: a diagonal step
+        # between two free cells can pass a blocked cell between its samples
+        if not self.safety.segments_free(p[:-1], p[1:]).all():
             return math.inf
         r = self.cfg.resolution
         ij = np.floor((q - self.lo) / r + 0.5).astype(int)
