@@ -121,19 +121,15 @@ def test_bad_config_is_named(field, value):
         CostMapConfig(**{field: value})
 
 
-def test_path_cost_applies_the_followers_exact_segment_test():
+def test_path_cost_with_exact_segments_applies_the_followers_test():
     """A diagonal 0.1 m step (the cost map's grid step) near an obstacle's inflated disc can
     pass a blocked cell between path_cost's 5 cm samples. The follower's exact traversal
-    (segments_free) refuses such a step, so path_cost calls it blocked too."""
+    (segments_free) refuses such a step; with ``exact_segments`` path_cost calls it blocked
+    too, by default (samples only) it is priced."""
     planning, safety = checkers(np.array([[0.0, 0.0, 0.5]]))
-    cm = CostMap(
-        CostMapConfig(),
-        safety,
-        planning,
-        np.array([3.0, 0.0]),
-        np.array([-3.0, 0.0]),
-        known_everywhere(),
-    )
+    goal, start, known = np.array([3.0, 0.0]), np.array([-3.0, 0.0]), known_everywhere()
+    exact_cm = CostMap(CostMapConfig(exact_segments=True), safety, planning, goal, start, known)
+    sampled_cm = CostMap(CostMapConfig(), safety, planning, goal, start, known)
     rng = np.random.default_rng(1)
     grazing = free = 0
     for _ in range(3000):
@@ -143,7 +139,10 @@ def test_path_cost_applies_the_followers_exact_segment_test():
         a, b = m - d / 2, m + d / 2
         q = a + ((np.arange(3) + 0.5) / 3)[:, None] * (b - a)  # path_cost's samples of a step
         exact = bool(safety.segments_free(a[None], b[None])[0])
-        assert math.isfinite(cm.path_cost(np.stack([a, b]))) == exact
-        grazing += int(not exact and safety.is_free(np.vstack([a, b, q])).all())
+        assert math.isfinite(exact_cm.path_cost(np.stack([a, b]))) == exact
+        sampled_free = bool(safety.is_free(np.vstack([a, b, q])).all())
+        if not exact and sampled_free:
+            grazing += 1
+            assert math.isfinite(sampled_cm.path_cost(np.stack([a, b])))
         free += int(exact)
     assert grazing > 0 and free > 0  # both kinds of step were judged

@@ -183,7 +183,7 @@ def test_map_clearing_config_is_validated(ideal_env):
 
 
 def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):
-    """When the follower refuses even the fresh plan (its next metre cuts the safety model:
+    """With ``refused_plan_no_route``: when the follower refuses even the fresh plan (its next metre cuts the safety model:
     on nav2-L1-005 a cost-map route squeezed diagonally between two blocked cells and the robot
     stood still for 369 steps), the agent looks around like with no route and clears the map
     after ``clear_after`` such steps, instead of commanding zero velocity."""
@@ -191,7 +191,12 @@ def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, mon
     from simn_sim.planning.follower import FollowerCommand, PathFollower
 
     obs, info = ideal_env.reset(seed=0)
-    cfg = {"initial_scan_deg": 0.0, "clear_after": 5, "obstacles": {"bump_ttl": 0}}
+    cfg = {
+        "initial_scan_deg": 0.0,
+        "clear_after": 5,
+        "obstacles": {"bump_ttl": 0},
+        "refused_plan_no_route": True,
+    }
     agent = make_agent("simn", ideal_env.unwrapped, cfg)
     agent.reset(obs, info)
     obs, *_ = ideal_env.step(agent.act(obs))

@@ -420,14 +420,19 @@ class SimnAgent:
             if self.path is None:
                 return self._no_route()
             cmd = self.follower.step(pose)
+        refused_is_no_route = self.cfg.refused_plan_no_route
+        if not refused_is_no_route:
+            self._no_plan_steps = 0
         if cmd.status == "reached" and float(np.hypot(*(self.goal - xy))) > 0.2:
             self._plan(xy)  # reached a sub-goal: plan on towards the goal
             if self.path is not None:
                 cmd = self.follower.step(pose)
         if cmd.status in ("blocked", "stale"):
             # the fresh plan is one the follower will not take (its next metre cuts the safety
-            # model): no route either. Standing still would show the map nothing new.
-            return self._no_route()
+            # model): with refused_plan_no_route, no route either; else stand still
+            if refused_is_no_route:
+                return self._no_route()
+            return np.array([0.0, 0.0], np.float32)
         self._no_plan_steps = 0
         return np.array([cmd.v, cmd.w], np.float32)
 

@@ -104,6 +104,11 @@ class SimnAgentConfig(Config):
     # one on, no bumps) and look around; at most once per clear_cooldown steps; 0: off
     clear_after: int = 30
     clear_cooldown: int = 200
+    # when the follower refuses even a fresh plan (blocked right after replanning): False,
+    # command zero velocity (the robot stands until lost progress or a map change moves it);
+    # True, treat it as no route (look around, clear the map after clear_after steps).
+    # office_nav_v2 with this and costmap.exact_segments: docs/navigation.md
+    refused_plan_no_route: bool = False
     seed: int = 0
 
     @classmethod

@@ -52,6 +52,9 @@ class CostMapConfig(Config):
     margin_weight: float = 4.0
     known_radius: float = 0.2
     goal_snap: float = 0.5
+    # path_cost also applies the path follower's exact segment test (segments_free); off: the
+    # 5 cm samples only (office_nav_v2: see docs/navigation.md, "A plan the follower refuses")
+    exact_segments: bool = False
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -183,7 +186,8 @@ class CostMap:
 
     def path_cost(self, path: np.ndarray, spacing: float = 0.05) -> float:
         """Weighted length of ``path`` (M, 2) plus the cost-to-go from its last vertex (0 at the
-        goal); inf when any segment of it passes a cell blocked under the safety margin."""
+        goal); inf when any point of it is blocked under the safety margin (with
+        ``exact_segments``: when any segment passes a blocked cell)."""
         p = np.asarray(path, float)
         if len(p) < 2:
             return self.cost_to_go(p[0]) if len(p) else math.inf
@@ -194,9 +198,11 @@ class CostMap:
         a = np.repeat(p[:-1], n, axis=0)
         d = np.repeat(seg, n, axis=0)
         q = a + t[:, None] * d
-        # the exact grid traversal (the path follower's test), not the samples: a diagonal step
-        # between two free cells can pass a blocked cell between its samples
-        if not self.safety.segments_free(p[:-1], p[1:]).all():
+        # exact_segments: the grid traversal (the path follower's test); a diagonal step between
+        # two free cells can pass a blocked cell between the samples
+        if not self.safety.is_free(q).all() or (
+            self.cfg.exact_segments and not self.safety.segments_free(p[:-1], p[1:]).all()
+        ):
             return math.inf
         r = self.cfg.resolution
         ij = np.floor((q - self.lo) / r + 0.5).astype(int)
