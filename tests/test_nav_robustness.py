@@ -183,10 +183,11 @@ def test_map_clearing_config_is_validated(ideal_env):
 
 
 def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):
-    """With ``refused_plan_no_route``: when the follower refuses even the fresh plan (its next metre cuts the safety model:
-    on nav2-L1-005 a cost-map route squeezed diagonally between two blocked cells and the robot
-    stood still for 369 steps), the agent looks around like with no route and clears the map
-    after ``clear_after`` such steps, instead of commanding zero velocity."""
+    """With ``refused_plan_no_route``: when the follower refuses even the fresh plan (its next
+    metre cuts the safety model: on nav2-L1-005 a cost-map route squeezed diagonally between
+    two blocked cells and the robot stood still for 369 steps), the agent looks around like
+    with no route and clears the map after ``clear_after`` such steps, instead of commanding
+    zero velocity."""
     from simn_sim.agents import make_agent
     from simn_sim.planning.follower import FollowerCommand, PathFollower
 

@@ -420,20 +420,17 @@ class SimnAgent:
             if self.path is None:
                 return self._no_route()
             cmd = self.follower.step(pose)
-        refused_is_no_route = self.cfg.refused_plan_no_route
-        if not refused_is_no_route:
-            self._no_plan_steps = 0
         if cmd.status == "reached" and float(np.hypot(*(self.goal - xy))) > 0.2:
             self._plan(xy)  # reached a sub-goal: plan on towards the goal
             if self.path is not None:
                 cmd = self.follower.step(pose)
-        if cmd.status in ("blocked", "stale"):
+        if cmd.status in ("blocked", "stale") and self.cfg.refused_plan_no_route:
             # the fresh plan is one the follower will not take (its next metre cuts the safety
-            # model): with refused_plan_no_route, no route either; else stand still
-            if refused_is_no_route:
-                return self._no_route()
-            return np.array([0.0, 0.0], np.float32)
+            # model): no route either
+            return self._no_route()
         self._no_plan_steps = 0
+        if cmd.status in ("blocked", "stale"):
+            return np.array([0.0, 0.0], np.float32)  # stand still
         return np.array([cmd.v, cmd.w], np.float32)
 
     # ---- reporting ---------------------------------------------------------------------------
