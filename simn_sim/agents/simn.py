@@ -32,10 +32,15 @@ import numpy as np
 
 from simn_sim.agents.base import register_agent
 from simn_sim.agents.guidance import topo_subgoal
-from simn_sim.agents.recovery import BumpDetector, drive_to, escape, nearest_free
+from simn_sim.agents.recovery import (
+    BumpDetector,
+    NoRouteWatch,
+    ProgressWatch,
+    back_off,
+    nearest_free,
+)
 from simn_sim.agents.routes import field_route, make_planner, squeezed_checker, tree_edges
-from simn_sim.agents.simn_config import SimnAgentConfig
-from simn_sim.config import ConfigError
+from simn_sim.agents.simn_config import SimnAgentConfig, points_ablation_config
 from simn_sim.geometry.paths import path_length
 from simn_sim.geometry.se3 import inv_T, planar_T, yaw_of
 from simn_sim.planning import PathFollower
@@ -98,7 +103,7 @@ class SimnAgent:
         )
         self.obstacles = self.world.obstacles
         self.follower = PathFollower(self.follower_cfg, self.obstacles.safety)
-        self.bump = BumpDetector(self.control_dt)
+        self.bump = BumpDetector(self.control_dt, min_progress=self.cfg.bump_min_progress)
         self.goal = np.asarray(obs["goal"], float)
         self.T_odom_prev = self._odom_T(obs)
         self.path: np.ndarray | None = None
@@ -119,8 +124,7 @@ class SimnAgent:
         self._best_goal_dist = math.inf  # the robot's closest approach to the goal so far
         self._route_kind = "goal_unexplored"
         self._driven: list[np.ndarray] = []  # the estimated positions driven (known space)
-        self._best_ctg = math.inf  # the least cost-to-go so far, and the step it was reached
-        self._best_ctg_step = 0
+        self._progress = ProgressWatch(self.cfg.stall_steps, self.cfg.progress_eps)
         self._ctg: float | None = None
         self._force_until = -1  # follow the cost map's route until this step
         self.lost_progress = 0
@@ -128,8 +132,7 @@ class SimnAgent:
         self.squeezes = 0  # routes found only with the squeezed model
         self._squeeze_until = -1
         self._squeezed = None  # the squeezed collision model while squeezing
-        self._no_plan_steps = 0  # control steps in a row without a route
-        self._last_clear = -math.inf  # the step of the last map clear
+        self._route_watch = NoRouteWatch(self.cfg.clear_after, self.cfg.clear_cooldown)
         self._step = self.world.update(0.0, obs, self.T_odom_prev)
 
     @staticmethod
@@ -225,8 +228,7 @@ class SimnAgent:
             self.cfg.costmap, self.obstacles.safety, self.obstacles.planning, self.goal, xy, known
         )
         self._ctg = cm.cost_to_go(xy)
-        if self._ctg < self._best_ctg - self.cfg.progress_eps:
-            self._best_ctg, self._best_ctg_step = self._ctg, self.steps
+        self._progress.update(self._ctg, self.steps)
         return cm
 
     def _judge(self, rrt_path: np.ndarray | None, xy: np.ndarray, scheduled: bool) -> None:
@@ -331,18 +333,10 @@ class SimnAgent:
     def _no_route(self) -> np.ndarray:
         """No route to the goal on the map: look around (turning reveals more of the map); after
         ``clear_after`` such steps in a row, clear the map and look all the way round."""
-        self._no_plan_steps += 1
-        c = self.cfg
-        if (
-            c.clear_after > 0
-            and self._no_plan_steps >= c.clear_after
-            and self.steps - self._last_clear >= c.clear_cooldown
-        ):
+        if self._route_watch.no_route(self.steps):
             self.obstacles.forget(self.world.frames.current_id)
-            self._last_clear = self.steps
-            self._no_plan_steps = 0
             self._scan_steps = self._full_scan_steps
-            self._best_ctg, self._best_ctg_step = math.inf, self.steps
+            self._progress.restart(self.steps)
         return self._look_around()
 
     def _act(self, obs: dict) -> np.ndarray:
@@ -368,38 +362,33 @@ class SimnAgent:
             self.cfg.judge
             and self._ctg is not None
             and self._scan_steps == 0
-            and self.steps - self._best_ctg_step > self.cfg.stall_steps
+            and self._progress.stalled(self.steps)
         ):
             # lost progress: the cost-to-go on the agent's own map has not fallen for
             # stall_steps; look around, then follow the cost map's route for a while
             self.lost_progress += 1
             self._scan_steps = self._full_scan_steps
             self._force_until = self.steps + self._full_scan_steps + self.cfg.force_steps
-            self._best_ctg, self._best_ctg_step = math.inf, self.steps
+            self._progress.restart(self.steps)
             self.path = None
             self._job = None
-        checker, w_max = self.obstacles.planning, self.follower_cfg.w_max
+        w_max = self.follower_cfg.w_max
         touch = (
             self.cfg.obstacles.collision.robot_radius
             + 0.01
             - (self.cfg.squeeze + 0.02 if self._squeezed is not None else 0.0)
         )
-        if float(checker.clearance(xy[None])[0]) < touch:
-            self._state = "escaping"  # (nearly) touching a mapped obstacle
+        backing = back_off(
+            pose,
+            self.obstacles.planning,
+            touch,
+            lambda: self._squeezed if self._squeezing() else self.obstacles.safety,
+            self.follower_cfg,
+        )
+        if backing is not None:  # touching the map, or inside the safety margin
+            self._state, a = backing
             self.path = None
-            return escape(pose, checker, w_max)
-        active = self._squeezed if self._squeezing() else self.obstacles.safety
-        if not active.is_free(xy[None])[0]:
-            # inside the safety margin (the map grew around the robot): back out to the nearest
-            # point free under the planning margin before planning again
-            self._state = "recovering"
-            self.path = None
-            target = nearest_free(checker, xy, radius=0.6)
-            return (
-                escape(pose, checker, w_max)
-                if target is None
-                else drive_to(pose, target, self.follower_cfg)
-            )
+            return a
         if self._scan_steps > 0:  # initial look-around (turning in place sweeps no new space)
             self._scan_steps -= 1
             self._state = "scanning"
@@ -428,7 +417,7 @@ class SimnAgent:
             # the fresh plan is one the follower will not take (its next metre cuts the safety
             # model): no route either
             return self._no_route()
-        self._no_plan_steps = 0
+        self._route_watch.route()
         if cmd.status in ("blocked", "stale"):
             return np.array([0.0, 0.0], np.float32)  # stand still
         return np.array([cmd.v, cmd.w], np.float32)
@@ -488,20 +477,8 @@ def _make_simn(env: Any, config: dict[str, Any]) -> SimnAgent:
 
 
 def _make_simn_points(env: Any, config: dict[str, Any]) -> SimnAgent:
-    """The point-store ablation: ``simn`` with each local frame's map a surface point store
-    (:meth:`SlamConfig.for_points_agent`) instead of the learned map; a ``slam`` mapping in
-    ``config`` changes that preset."""
-    cfg = dict(config)
-    slam = cfg.get("slam")
-    if slam is not None and not isinstance(slam, dict):
-        raise ConfigError("simn_points: 'slam' must be a mapping of SlamConfig changes")
-    slam = dict(slam or {})
-    if slam.get("preset", "points_agent") != "points_agent":
-        raise ConfigError(
-            f"simn_points: slam.preset is 'points_agent' for this agent, got {slam['preset']!r}"
-        )
-    cfg["slam"] = {**slam, "preset": "points_agent"}
-    return SimnAgent(env, cfg, name="simn_points")
+    """The point-store ablation (:func:`points_ablation_config`)."""
+    return SimnAgent(env, points_ablation_config(config), name="simn_points")
 
 
 def _make_rrtstar(env: Any, config: dict[str, Any]) -> SimnAgent:

@@ -14,7 +14,7 @@ from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.presets import slam_config_from_preset
 from simn_sim.world import ObstacleConfig
 
-__all__ = ["MOVED_KEYS", "SimnAgentConfig"]
+__all__ = ["MOVED_KEYS", "SimnAgentConfig", "points_ablation_config"]
 
 # Keys of SimnAgentConfig before the world-model redesign and where they are now.
 MOVED_KEYS: dict[str, str] = {
@@ -109,6 +109,10 @@ class SimnAgentConfig(Config):
     # True, treat it as no route (look around, clear the map after clear_after steps).
     # office_nav_v2 with this and costmap.exact_segments: docs/navigation.md
     refused_plan_no_route: bool = False
+    # a forward-commanded step whose odometry shows less than this share of the commanded
+    # distance is a contact sign (two in four steps are a bump; BumpDetector). 0.5 before
+    # 2026-12-06: the actuation noise alone fired it (docs/navigation.md, "False bumps")
+    bump_min_progress: float = 0.3
     seed: int = 0
 
     @classmethod
@@ -142,9 +146,27 @@ class SimnAgentConfig(Config):
         require(self.force_steps >= 0, n, "force_steps", "must be >= 0")
         require(self.clear_after >= 0, n, "clear_after", "must be >= 0 (0: off)")
         require(self.clear_cooldown >= 1, n, "clear_cooldown", "must be >= 1")
+        require(0 < self.bump_min_progress < 1, n, "bump_min_progress", "must be in (0, 1)")
         require(
             0 <= self.squeeze < self.obstacles.collision.robot_radius,
             n,
             "squeeze",
             "must be in [0, robot radius)",
         )
+
+
+def points_ablation_config(config: dict[str, Any]) -> dict[str, Any]:
+    """The agent config of the point-store ablation (agent ``simn_points``): ``config`` with
+    each local frame's map a surface point store (:meth:`SlamConfig.for_points_agent`)
+    instead of the learned map; a ``slam`` mapping in ``config`` changes that preset."""
+    cfg = dict(config)
+    slam = cfg.get("slam")
+    if slam is not None and not isinstance(slam, dict):
+        raise ConfigError("simn_points: 'slam' must be a mapping of SlamConfig changes")
+    slam = dict(slam or {})
+    if slam.get("preset", "points_agent") != "points_agent":
+        raise ConfigError(
+            f"simn_points: slam.preset is 'points_agent' for this agent, got {slam['preset']!r}"
+        )
+    cfg["slam"] = {**slam, "preset": "points_agent"}
+    return cfg
