@@ -33,11 +33,12 @@ from simn_sim.env.episodes import EpisodeSpec
 from simn_sim.geometry.se3 import inv_T, planar_T
 
 
-def corridor(env) -> tuple[float, float, float]:
-    """(y_mid, y_south_face, y_north_face) of the reference office's corridor (from its doors)."""
+def corridor(env) -> tuple[float, float]:
+    """(y_mid, y_north) of the reference office's corridor: its centre line and the line of the
+    doors in its north wall."""
     lay = env.unwrapped.layout
     ys = sorted({d.center[1] for d in lay.doors if d.axis == "x"})
-    return 0.5 * (ys[0] + ys[-1]), ys[0], ys[-1]
+    return 0.5 * (ys[0] + ys[-1]), ys[-1]
 
 
 def drive(env, spec: EpisodeSpec, policy, steps: int) -> list[dict]:
@@ -70,6 +71,8 @@ def drive(env, spec: EpisodeSpec, policy, steps: int) -> list[dict]:
 
 
 def free_policy(rng: np.random.Generator, y_mid: float, x_lo: float, x_hi: float):
+    """Pure pursuit between random waypoints near the corridor's centre line, at random speed
+    levels held 5-30 steps, with occasional stops; turns in place beyond 30 deg of bearing."""
     state = {"wp": None, "v": 0.5, "hold": 0, "stop": 0}
 
     def pol(pose, k):
@@ -92,9 +95,9 @@ def free_policy(rng: np.random.Generator, y_mid: float, x_lo: float, x_hi: float
     return pol
 
 
-def replay(rows: list[dict], min_progress: float) -> list[int]:
+def replay(rows: list[dict], min_progress: float, dt: float) -> list[int]:
     """The steps at which a detector with ``min_progress`` fires."""
-    det = BumpDetector(0.1, min_progress=min_progress)
+    det = BumpDetector(dt, min_progress=min_progress)
     fired = []
     for k, r in enumerate(rows):
         T = np.eye(4)
@@ -112,7 +115,8 @@ def main() -> None:
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.4, 0.3, 0.25, 0.2])
     args = ap.parse_args()
     env = gym.make("SimnOffice-v0", config={"width": 64, "height": 48})  # realistic sensing
-    y_mid, y_s, y_n = corridor(env)
+    y_mid, y_n = corridor(env)
+    dt = float(env.unwrapped.dt)
     x_lo, x_hi = 2.0, env.unwrapped.layout.size[0] - 2.0
     free: list[list[dict]] = []
     for s in range(args.free_episodes):
@@ -137,30 +141,29 @@ def main() -> None:
                 hits.append(({"incidence_deg": inc, "v": v, "x": x}, rows))
     env.close()
 
-    report = {"free_forward_steps": 0, "contact_drives": len(hits), "thresholds": {}}
-    fwd = sum(1 for rows in free for r in rows if r["v"] > 0.1 and not r["contact"])
-    report["free_forward_steps"] = fwd
     free_ratio = [
-        r["dx"] / (r["v"] * 0.1) for rows in free for r in rows if r["v"] > 0.1 and not r["contact"]
+        r["dx"] / (r["v"] * dt) for rows in free for r in rows if r["v"] > 0.1 and not r["contact"]
     ]
+    fwd = len(free_ratio)  # forward-commanded free steps
+    report = {"free_forward_steps": fwd, "contact_drives": len(hits), "thresholds": {}}
     report["free_progress_ratio_quantiles"] = {
         str(q): float(np.quantile(free_ratio, q)) if free_ratio else None
         for q in (0.0, 0.001, 0.01, 0.05, 0.5)
     }
-    contact_ratio = [r["dx"] / (r["v"] * 0.1) for _, rows in hits for r in rows if r["contact"]]
+    contact_ratio = [r["dx"] / (r["v"] * dt) for _, rows in hits for r in rows if r["contact"]]
     report["contact_progress_ratio_quantiles"] = {
         str(q): float(np.quantile(contact_ratio, q)) for q in (0.5, 0.9, 0.99, 1.0)
     }
     for t in args.thresholds:
         false = 0
         for rows in free:
-            for k in replay(rows, t):
+            for k in replay(rows, t, dt):
                 if not any(r["contact"] for r in rows[max(0, k - 4) : k + 1]):
                     false += 1
         delays, missed = [], []
         for meta, rows in hits:
             first = next(k for k, r in enumerate(rows) if r["contact"])
-            f = [k for k in replay(rows, t) if k >= first]
+            f = [k for k in replay(rows, t, dt) if k >= first]
             if f:
                 delays.append(f[0] - first)
             else:

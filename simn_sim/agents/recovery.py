@@ -29,10 +29,11 @@ class BumpDetector:
     last ``window`` forward-commanded steps are a bump (the count then restarts).
 
     ``min_progress`` 0.3: the env's realistic actuation noise (a per-episode gain error and an
-    error correlated over 0.5 s) made free steps as slow as 0.45 of the command, and 0.5 fired
-    14 false bumps in 20441 free forward steps; 0.4 to 0.2 fired none and caught the same wall
-    contacts as 0.5, as early (in contact the median step made 0.001 of its distance;
-    ``scripts/bench_bumps.py``, docs/navigation.md). ``max_slip`` 0.012 m per 0.1 s step is 3x
+    error correlated over 0.5 s) made free steps as slow as 0.451 of the command, and 0.5 fired
+    14 false bumps in 20441 free forward steps, 0.3 none. 0.3 still caught all 15 wall drives
+    (median 2 steps after the first contact, as 0.5), but glancing ones later (at most 12
+    steps against 4); a turn past a low box making 0.43-0.52 of its progress goes unnoticed
+    (``scripts/bench_bumps.py``, docs/navigation.md). ``max_slip`` 0.012 m per 0.1 s step is 3x
     the sideways motion measured while turning at full speed in free space."""
 
     def __init__(

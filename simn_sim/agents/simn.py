@@ -372,7 +372,6 @@ class SimnAgent:
             self._progress.restart(self.steps)
             self.path = None
             self._job = None
-        w_max = self.follower_cfg.w_max
         touch = (
             self.cfg.obstacles.collision.robot_radius
             + 0.01
@@ -392,7 +391,7 @@ class SimnAgent:
         if self._scan_steps > 0:  # initial look-around (turning in place sweeps no new space)
             self._scan_steps -= 1
             self._state = "scanning"
-            return np.array([0.0, min(self.cfg.scan_rate, w_max)], np.float32)
+            return np.array([0.0, min(self.cfg.scan_rate, self.follower_cfg.w_max)], np.float32)
         self.since_plan += 1
         if self.path is None:
             self._plan(xy)
