@@ -200,6 +200,9 @@ def test_map_clearing_config_is_validated(ideal_env):
         make_agent("simn", ideal_env.unwrapped, {"clear_after": -1})
     with pytest.raises(ConfigError, match="bump_ttl"):
         make_agent("simn", ideal_env.unwrapped, {"obstacles": {"bump_ttl": -2}})
+    for bad in (0.0, 1.0, float("nan")):
+        with pytest.raises(ConfigError, match="bump_min_progress"):
+            make_agent("simn", ideal_env.unwrapped, {"bump_min_progress": bad})
 
 
 def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):
