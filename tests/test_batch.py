@@ -273,6 +273,44 @@ def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
         assert got[e][0]["error"] is None
 
 
+def _pid_task(task: Any) -> Any:
+    """Stands in for ``run_task`` in a spawned worker: a clean record from this process."""
+    import os
+
+    from simn_sim.experiments.batch_worker import EpisodeResult, identity_record
+
+    rec = identity_record(task, "")
+    rec.update(error=None, termination="success", success=True)
+    return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
+
+
+def test_local_pool_replaces_its_workers_after_episodes_per_worker(tmp_path: Path) -> None:
+    from simn_sim.experiments.batch_local import run_local
+    from simn_sim.experiments.batch_worker import EpisodeTask
+
+    def task(eid: str) -> EpisodeTask:
+        ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
+        return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep)
+
+    ids = ["a", "b", "c", "d", "e"]
+    for per_worker, groups in ((2, [2, 2, 1]), (0, [5])):
+        order: list[tuple[str, int]] = []
+        run_local(
+            [task(e) for e in ids],
+            1,
+            lambda t, r: order.append((r.record["episode_id"], r.pid)),
+            fn=_pid_task,
+            per_worker=per_worker,
+        )
+        assert [e for e, _ in order] == ids  # one worker: the episodes run in order, all once
+        runs = [1]
+        for (_, p0), (_, p1) in zip(order, order[1:]):
+            runs[-1:] = [runs[-1] + 1] if p1 == p0 else [runs[-1], 1]
+        assert runs == groups and len({p for _, p in order}) == len(groups)
+    with pytest.raises(BatchError, match="episodes-per-worker"):
+        BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, episodes_per_worker=-1)
+
+
 def test_same_episode_id_with_another_spec_is_refused(tmp_path: Path) -> None:
     spec = EpisodeSet.load(regression_episode_file()).episodes[0]
     out = tmp_path / "run"

@@ -200,11 +200,15 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
         elif cfg.backend == "ray":
             from simn_sim.experiments.batch_ray import run_ray
 
-            ray_info = run_ray(tasks, cfg.workers, cfg.ray_address, sink)
+            ray_info = run_ray(
+                tasks, cfg.workers, cfg.ray_address, sink, cfg.episodes_per_worker
+            )
         elif cfg.workers == 0:
             run_inprocess(tasks, sink)
         else:
-            run_local(tasks, min(cfg.workers, len(tasks)), sink)
+            run_local(
+                tasks, min(cfg.workers, len(tasks)), sink, per_worker=cfg.episodes_per_worker
+            )
     finally:
         if sink.bar is not None:
             sink.bar.close()
@@ -423,6 +427,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help="threads per worker for OpenMP/MKL/torch and Mesa llvmpipe rendering (default 1)",
     )
+    p.add_argument(
+        "--episodes-per-worker",
+        type=int,
+        default=BatchConfig.episodes_per_worker,
+        help="replace a worker process after this many episodes; its memory grows with each "
+        "(0: never; default %(default)s)",
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
@@ -452,6 +463,7 @@ def batch_main(argv: list[str] | None = None) -> int:
             agent_config=load_yaml(args.agent_config, "agent config"),
             ray_address=args.ray_address,
             threads_per_worker=args.threads_per_worker,
+            episodes_per_worker=args.episodes_per_worker,
             progress=not args.no_progress,
             plots=not args.no_plots,
             argv=argv,

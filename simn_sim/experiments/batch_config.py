@@ -42,6 +42,9 @@ class BatchConfig(Config):
     agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     ray_address: str | None = None
     threads_per_worker: int = 1
+    # a worker process runs at most this many episodes, then a fresh one takes over (0: no
+    # limit): its memory grows with each episode (see batch_local)
+    episodes_per_worker: int = 8
     progress: bool = True
     plots: bool = True
     argv: list[str] | None = None
@@ -76,6 +79,10 @@ class BatchConfig(Config):
             raise BatchError(f"--backend must be 'local' or 'ray', got {self.backend!r}")
         if self.backend == "ray" and self.workers < 1 and self.ray_address is None:
             raise BatchError("--backend ray needs --workers >= 1 (or --ray-address)")
+        if self.episodes_per_worker < 0:
+            raise BatchError(
+                f"--episodes-per-worker must be >= 0 (0: no limit), got {self.episodes_per_worker}"
+            )
         if self.threads_per_worker < 1:
             raise BatchError(f"--threads-per-worker must be >= 1, got {self.threads_per_worker}")
         if self.backend == "ray":

@@ -1,7 +1,11 @@
 """Local batch backends: in-process (``workers=0``) and a spawn process pool.
 
 The pool uses the ``spawn`` start method (an EGL context must never be forked); at most
-``workers`` episodes are in flight. When a worker process dies (e.g. a segfault in a native
+``workers`` episodes are in flight. A pool's processes are replaced after ``per_worker`` x
+``workers`` episodes (the pool drains, closes, and a fresh one takes the rest): a worker's
+resident memory grows with the episodes it has run (office_nav_v2, 320x240: 4.3-4.8 GB peak
+after 9-10 episodes, 8-10 GB after about 20; docs/experiments.md), so a long run would
+otherwise outgrow the machine. When a worker process dies (e.g. a segfault in a native
 library) the episodes that were in flight run again one at a time in a fresh process, so that
 the death is pinned on the right episode, which gets an error record after dying
 :data:`~simn_sim.experiments.batch_worker.MAX_ATTEMPTS` times on its own.
@@ -36,11 +40,18 @@ def run_inprocess(tasks: Sequence[EpisodeTask], sink: ResultSink) -> None:
 
 
 def _pool_pass(
-    queue: list[EpisodeTask], width: int, sink: ResultSink, fn: TaskFn, threads: int
+    queue: list[EpisodeTask],
+    width: int,
+    sink: ResultSink,
+    fn: TaskFn,
+    threads: int,
+    budget: int = 0,
 ) -> list[EpisodeTask]:
     """Run tasks popped from ``queue`` in one spawn pool of ``width`` processes, at most
-    ``width`` in flight. Returns the tasks that were in flight when a worker process died
-    (the pool is then unusable; the rest stay in ``queue``), or [] when ``queue`` ran empty."""
+    ``width`` in flight and at most ``budget`` in all (0: no limit). Returns the tasks that
+    were in flight when a worker process died (the pool is then unusable; the rest stay in
+    ``queue``), or [] when ``queue`` ran empty or the budget was spent and all its tasks
+    finished."""
     from concurrent.futures.process import BrokenProcessPool
 
     pool = cf.ProcessPoolExecutor(
@@ -51,11 +62,13 @@ def _pool_pass(
     )
     inflight: dict[cf.Future, EpisodeTask] = {}
     broken = False
+    submitted = 0
     try:
-        while queue or inflight:
-            while queue and len(inflight) < width:
+        while inflight or (queue and (budget <= 0 or submitted < budget)):
+            while queue and len(inflight) < width and (budget <= 0 or submitted < budget):
                 t = queue.pop()
                 inflight[pool.submit(fn, t)] = t
+                submitted += 1
             done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
             for fut in done:
                 try:
@@ -74,9 +87,14 @@ def _pool_pass(
 
 
 def run_local(
-    tasks: Sequence[EpisodeTask], workers: int, sink: ResultSink, fn: TaskFn = run_task
+    tasks: Sequence[EpisodeTask],
+    workers: int,
+    sink: ResultSink,
+    fn: TaskFn = run_task,
+    per_worker: int = 0,
 ) -> None:
-    """Process pool (spawn), at most ``workers`` episodes in flight.
+    """Process pool (spawn), at most ``workers`` episodes in flight; after ``per_worker`` x
+    ``workers`` episodes (0: never) the pool drains and fresh processes run the rest.
 
     When a worker process dies, the episodes that were in flight are suspects: each runs again
     alone in a fresh one-process pool, so a death is pinned on the right episode; one whose
@@ -98,4 +116,5 @@ def run_local(
                 else:
                     suspects.append(t)
         else:
-            suspects.extend(_pool_pass(queue, workers, sink, fn, threads))
+            budget = per_worker * workers if per_worker > 0 else 0
+            suspects.extend(_pool_pass(queue, workers, sink, fn, threads, budget))

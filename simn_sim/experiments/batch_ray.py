@@ -44,9 +44,15 @@ def _init(workers: int, address: str | None) -> None:
 
 
 def run_ray(
-    tasks: Sequence[EpisodeTask], workers: int, address: str | None, sink: ResultSink
+    tasks: Sequence[EpisodeTask],
+    workers: int,
+    address: str | None,
+    sink: ResultSink,
+    per_worker: int = 0,
 ) -> dict[str, Any]:
-    """Run ``tasks`` as Ray tasks; returns what Ray ran on (for ``run_stats.json``)."""
+    """Run ``tasks`` as Ray tasks; returns what Ray ran on (for ``run_stats.json``).
+    ``per_worker``: a Ray worker process runs at most this many episodes (Ray's
+    ``max_calls``; 0: no limit)."""
     try:
         import ray
     except ImportError as e:
@@ -61,7 +67,7 @@ def run_ray(
         "ray_resources": ray.cluster_resources(),
         "ray_init_s": time.perf_counter() - t0,
     }
-    remote = ray.remote(num_cpus=1, max_retries=MAX_ATTEMPTS - 1)(run_task)
+    remote = ray.remote(num_cpus=1, max_retries=MAX_ATTEMPTS - 1, max_calls=per_worker)(run_task)
     try:
         refs = {remote.remote(t): t for t in tasks}
         while refs:
