@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -293,7 +294,8 @@ def test_local_pool_replaces_its_workers_after_episodes_per_worker(tmp_path: Pat
         return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep)
 
     ids = ["a", "b", "c", "d", "e"]
-    for per_worker, groups in ((2, [2, 2, 1]), (0, [5])):
+
+    def pids_in_order(per_worker: int) -> list[int]:
         order: list[tuple[str, int]] = []
         run_local(
             [task(e) for e in ids],
@@ -303,10 +305,12 @@ def test_local_pool_replaces_its_workers_after_episodes_per_worker(tmp_path: Pat
             per_worker=per_worker,
         )
         assert [e for e, _ in order] == ids  # one worker: the episodes run in order, all once
-        runs = [1]
-        for (_, p0), (_, p1) in zip(order, order[1:]):
-            runs[-1:] = [runs[-1] + 1] if p1 == p0 else [runs[-1], 1]
-        assert runs == groups and len({p for _, p in order}) == len(groups)
+        return [p for _, p in order]
+
+    for per_worker, groups in ((2, [2, 2, 1]), (0, [5])):
+        pids = pids_in_order(per_worker)
+        runs = [len(list(g)) for _, g in itertools.groupby(pids)]  # consecutive same process
+        assert runs == groups and len(set(pids)) == len(groups)
     with pytest.raises(BatchError, match="episodes-per-worker"):
         BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, episodes_per_worker=-1)
 

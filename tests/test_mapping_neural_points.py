@@ -7,7 +7,8 @@ from scipy.spatial import cKDTree
 
 from simn_sim.config import ConfigError
 from simn_sim.mapping import NeuralPointMap, NeuralPointsConfig
-from simn_sim.mapping.neural_points import idw_interpolate, pack_keys, unpack_keys
+from simn_sim.mapping.neural_points import idw_interpolate
+from simn_sim.mapping.point_index import pack_keys, unpack_keys
 
 
 def _surface_cloud(n=20000, seed=0):

@@ -200,15 +200,11 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
         elif cfg.backend == "ray":
             from simn_sim.experiments.batch_ray import run_ray
 
-            ray_info = run_ray(
-                tasks, cfg.workers, cfg.ray_address, sink, cfg.episodes_per_worker
-            )
+            ray_info = run_ray(tasks, cfg.workers, cfg.ray_address, sink, cfg.episodes_per_worker)
         elif cfg.workers == 0:
             run_inprocess(tasks, sink)
         else:
-            run_local(
-                tasks, min(cfg.workers, len(tasks)), sink, per_worker=cfg.episodes_per_worker
-            )
+            run_local(tasks, min(cfg.workers, len(tasks)), sink, per_worker=cfg.episodes_per_worker)
     finally:
         if sink.bar is not None:
             sink.bar.close()
