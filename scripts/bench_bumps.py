@@ -8,10 +8,14 @@ Two kinds of drive in the reference office's corridor, at 10 Hz:
   random speed levels, stops and turns in place, ``--free-episodes`` x ``--free-steps`` steps,
   no contact (a step whose hull touched anything is dropped with its window);
 - **contacts**: straight drives into the corridor's walls at incidence angles 0 (head-on) to 75
-  deg, at 0.3-0.8 m/s, 0.8 m from the wall, 80 steps each.
+  deg, at 0.3-0.8 m/s, 0.8 m from the wall, 80 steps each;
+- **glancing contacts**: drives from 0.5 m off the wall at 55-75 deg incidence that turn away
+  from it (0.5 or 1.0 rad/s) as they reach it, at 0.45 or 0.7 m/s (a turn past an obstacle),
+  80 steps each.
 
-For each ``min_progress`` it reports the false bumps per 1000 forward-commanded free steps and
-how many contact drives were detected, and within how many steps of the first contact. Every
+For each detector (``min_progress``, and ``rel_progress`` with ``--rel``) it reports the false
+bumps per 1000 forward-commanded free steps and how many contact drives of each kind were
+detected, and within how many steps of the first contact. Every
 drive is recorded once and replayed through the detector variants, so they see the same steps.
 
     MUJOCO_GL=egl python scripts/bench_bumps.py --out runs/bumps
@@ -95,9 +99,23 @@ def free_policy(rng: np.random.Generator, y_mid: float, x_lo: float, x_hi: float
     return pol
 
 
-def replay(rows: list[dict], min_progress: float, dt: float) -> list[int]:
-    """The steps at which a detector with ``min_progress`` fires."""
-    det = BumpDetector(dt, min_progress=min_progress)
+def glancing_policy(y_wall: float, v: float, w_away: float):
+    """Straight at ``v`` until the base centre is within 0.35 m of the wall line ``y_wall``
+    (its hull radius and a little), then turning away from it (clockwise) at ``w_away`` while
+    still driving, until it heads away from the wall."""
+
+    def pol(pose, k):
+        near = y_wall - pose[1] < 0.35
+        heading_in = math.sin(pose[2]) > 0.0
+        return [v, -w_away if near and heading_in else 0.0]
+
+    return pol
+
+
+def replay(rows: list[dict], min_progress: float, dt: float, rel: float = 0.0) -> list[int]:
+    """The steps at which a detector with ``min_progress`` (and ``rel_progress`` ``rel``)
+    fires."""
+    det = BumpDetector(dt, min_progress=min_progress, rel_progress=rel)
     fired = []
     for k, r in enumerate(rows):
         T = np.eye(4)
@@ -113,6 +131,9 @@ def main() -> None:
     ap.add_argument("--free-episodes", type=int, default=12)
     ap.add_argument("--free-steps", type=int, default=600)
     ap.add_argument("--thresholds", type=float, nargs="+", default=[0.5, 0.4, 0.3, 0.25, 0.2])
+    ap.add_argument(
+        "--rel", type=float, nargs="+", default=[0.0], help="rel_progress values (0: off)"
+    )
     args = ap.parse_args()
     env = gym.make("SimnOffice-v0", config={"width": 64, "height": 48})  # realistic sensing
     y_mid, y_n = corridor(env)
@@ -138,7 +159,19 @@ def main() -> None:
             spec = EpisodeSpec(f"hit{n}", None, start, goal, seed=700 + n)
             rows = drive(env, spec, lambda pose, k, v=v: [v, 0.0], 80)
             if any(r["contact"] for r in rows):
-                hits.append(({"incidence_deg": inc, "v": v, "x": x}, rows))
+                hits.append(({"kind": "wall", "incidence_deg": inc, "v": v, "x": x}, rows))
+    for inc in (55.0, 65.0, 75.0):
+        for v in (0.45, 0.7):
+            for w_away in (0.5, 1.0):
+                x = xs[n % len(xs)]
+                n += 1
+                start = (x, y_n - 0.5, math.pi / 2 - math.radians(inc))
+                goal = (x_lo if x > 12.0 else x_hi, y_mid)
+                spec = EpisodeSpec(f"glance{n}", None, start, goal, seed=700 + n)
+                rows = drive(env, spec, glancing_policy(y_n, v, w_away), 80)
+                if any(r["contact"] for r in rows):
+                    meta = {"kind": "glancing", "incidence_deg": inc, "v": v, "w": w_away, "x": x}
+                    hits.append((meta, rows))
     env.close()
 
     free_ratio = [
@@ -154,28 +187,39 @@ def main() -> None:
     report["contact_progress_ratio_quantiles"] = {
         str(q): float(np.quantile(contact_ratio, q)) for q in (0.5, 0.9, 0.99, 1.0)
     }
+    report["contact_drives_by_kind"] = {
+        k: sum(m["kind"] == k for m, _ in hits) for k in ("wall", "glancing")
+    }
     for t in args.thresholds:
-        false = 0
-        for rows in free:
-            for k in replay(rows, t, dt):
-                if not any(r["contact"] for r in rows[max(0, k - 4) : k + 1]):
-                    false += 1
-        delays, missed = [], []
-        for meta, rows in hits:
-            first = next(k for k, r in enumerate(rows) if r["contact"])
-            f = [k for k in replay(rows, t, dt) if k >= first]
-            if f:
-                delays.append(f[0] - first)
-            else:
-                missed.append(meta)
-        report["thresholds"][str(t)] = {
-            "false_bumps": false,
-            "false_per_1000_forward_steps": 1000.0 * false / max(fwd, 1),
-            "contacts_detected": len(hits) - len(missed),
-            "detection_delay_steps_max": max(delays) if delays else None,
-            "detection_delay_steps_median": float(np.median(delays)) if delays else None,
-            "missed": missed,
-        }
+        for rel in args.rel:
+            false = 0
+            for rows in free:
+                for k in replay(rows, t, dt, rel):
+                    if not any(r["contact"] for r in rows[max(0, k - 4) : k + 1]):
+                        false += 1
+            entry: dict = {
+                "false_bumps": false,
+                "false_per_1000_forward_steps": 1000.0 * false / max(fwd, 1),
+            }
+            for kind in ("wall", "glancing"):
+                delays, missed = [], []
+                for meta, rows in hits:
+                    if meta["kind"] != kind:
+                        continue
+                    first = next(k for k, r in enumerate(rows) if r["contact"])
+                    f = [k for k in replay(rows, t, dt, rel) if k >= first]
+                    if f:
+                        delays.append(f[0] - first)
+                    else:
+                        missed.append(meta)
+                entry[kind] = {
+                    "detected": len(delays),
+                    "delay_steps_max": max(delays) if delays else None,
+                    "delay_steps_median": float(np.median(delays)) if delays else None,
+                    "missed": missed,
+                }
+            key = str(t) if rel == 0 else f"{t}, rel {rel}"
+            report["thresholds"][key] = entry
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bumps.json").write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))

@@ -78,7 +78,7 @@ def _step(dx: float, dy: float) -> np.ndarray:
     return T
 
 
-def _free_drive_bumps(min_progress: float, episodes: int, steps: int) -> int:
+def _free_drive_bumps(min_progress: float, episodes: int, steps: int, rel: float = 0.0) -> int:
     """Bumps a detector fires over free driving at 0.8 m/s under the env's realistic actuation
     noise (its own model: a per-episode gain error and an AR(1) error over 0.5 s), with a
     little sideways motion while turning."""
@@ -87,7 +87,7 @@ def _free_drive_bumps(min_progress: float, episodes: int, steps: int) -> int:
     fired = 0
     for _ in range(episodes):
         noise.reset(rng)
-        det = BumpDetector(0.1, min_progress=min_progress)
+        det = BumpDetector(0.1, min_progress=min_progress, rel_progress=rel)
         for _ in range(steps):
             v, _w = noise.apply(0.8, 0.5, rng)
             fired += det.update(0.8, _step(0.1 * v, float(rng.uniform(-0.004, 0.004))))
@@ -112,6 +112,17 @@ def test_bump_detector_ignores_actuation_noise_and_catches_sliding_contact():
     # a step commanded at standstill or backwards is never a contact sign
     still = BumpDetector(0.1)
     assert not any(still.update(0.0, _step(0.0, 0.0)) for _ in range(10))
+
+
+def test_relative_progress_catches_a_drop_the_noise_does_not_make():
+    """A turn past a low box after free driving (nav2-ref-009, replayed: progress 1.06 of the
+    command, then 0.44 and 0.43 with little slip) is a bump with ``rel_progress`` 0.5 and none
+    without; the env's actuation noise alone never fires it."""
+    assert _free_drive_bumps(0.3, 100, 300, rel=0.5) == 0
+    seq = [1.04, 1.17, 1.09, 1.12, 1.06, 0.44, 0.43]
+    for rel, want in ((0.0, [False] * 7), (0.5, [False] * 6 + [True])):
+        det = BumpDetector(0.1, rel_progress=rel)
+        assert [det.update(0.7, _step(0.07 * p, -0.007)) for p in seq] == want
 
 
 # ---- map clearing: bumps expire, and a goal closed off on the map clears it ------------------
@@ -203,6 +214,9 @@ def test_map_clearing_config_is_validated(ideal_env):
     for bad in (0.0, 1.0, float("nan")):
         with pytest.raises(ConfigError, match="bump_min_progress"):
             make_agent("simn", ideal_env.unwrapped, {"bump_min_progress": bad})
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ConfigError, match="bump_rel_progress"):
+            make_agent("simn", ideal_env.unwrapped, {"bump_rel_progress": bad})
 
 
 def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Callable
 
@@ -34,7 +35,14 @@ class BumpDetector:
     (median 2 steps after the first contact, as 0.5), but glancing ones later (at most 12
     steps against 4); a turn past a low box making 0.43-0.52 of its progress goes unnoticed
     (``scripts/bench_bumps.py``, docs/navigation.md). ``max_slip`` 0.012 m per 0.1 s step is 3x
-    the sideways motion measured while turning at full speed in free space."""
+    the sideways motion measured while turning at full speed in free space.
+
+    ``rel_progress`` > 0 adds a relative test: a step whose progress ratio (odometry distance
+    over commanded distance) falls below ``rel_progress`` times the median ratio of the last
+    ``rel_window`` forward-commanded steps is a contact sign too. The actuation noise's error is
+    correlated over 0.5 s, so a slow stretch of noise is slow in its median as well, while a
+    contact after free driving drops the ratio at once (nav2-ref-009's turn past a low box:
+    1.06 -> 0.44)."""
 
     def __init__(
         self,
@@ -42,11 +50,15 @@ class BumpDetector:
         min_progress: float = 0.3,
         max_slip: float = 0.012,
         window: int = 4,
+        rel_progress: float = 0.0,
+        rel_window: int = 5,
     ) -> None:
         self.control_dt = float(control_dt)
         self.min_progress = float(min_progress)
         self.max_slip = float(max_slip)
         self.window = int(window)
+        self.rel_progress = float(rel_progress)
+        self._ratios: collections.deque[float] = collections.deque(maxlen=int(rel_window))
         self._recent: list[bool] = []  # suspicious or not, per forward-commanded step
         self._miss = np.zeros(2)
         self.bumps = 0
@@ -61,6 +73,10 @@ class BumpDetector:
         want = v_cmd * self.control_dt
         dx, dy = float(T_step[0, 3]), float(T_step[1, 3])
         bad = dx < self.min_progress * want or abs(dy) > self.max_slip
+        ratio = dx / want
+        if self.rel_progress > 0 and len(self._ratios) == self._ratios.maxlen:
+            bad = bad or ratio < self.rel_progress * float(np.median(self._ratios))
+        self._ratios.append(ratio)
         self._recent = (self._recent + [bad])[-self.window :]
         if bad:
             self._miss = np.array([want - dx, -dy])

@@ -103,7 +103,11 @@ class SimnAgent:
         )
         self.obstacles = self.world.obstacles
         self.follower = PathFollower(self.follower_cfg, self.obstacles.safety)
-        self.bump = BumpDetector(self.control_dt, min_progress=self.cfg.bump_min_progress)
+        self.bump = BumpDetector(
+            self.control_dt,
+            min_progress=self.cfg.bump_min_progress,
+            rel_progress=self.cfg.bump_rel_progress,
+        )
         self.goal = np.asarray(obs["goal"], float)
         self.T_odom_prev = self._odom_T(obs)
         self.path: np.ndarray | None = None

@@ -113,6 +113,9 @@ class SimnAgentConfig(Config):
     # distance is a contact sign (two in four steps are a bump; BumpDetector). 0.5 before
     # 2026-12-06: the actuation noise alone fired it (docs/navigation.md, "False bumps")
     bump_min_progress: float = 0.3
+    # > 0: also a contact sign below this share of the median progress ratio of the last 5
+    # forward steps (BumpDetector.rel_progress); 0: off
+    bump_rel_progress: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -147,6 +150,7 @@ class SimnAgentConfig(Config):
         require(self.clear_after >= 0, n, "clear_after", "must be >= 0 (0: off)")
         require(self.clear_cooldown >= 1, n, "clear_cooldown", "must be >= 1")
         require(0 < self.bump_min_progress < 1, n, "bump_min_progress", "must be in (0, 1)")
+        require(0 <= self.bump_rel_progress < 1, n, "bump_rel_progress", "must be in [0, 1)")
         require(
             0 <= self.squeeze < self.obstacles.collision.robot_radius,
             n,
