@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -313,6 +314,67 @@ def test_local_pool_replaces_its_workers_after_episodes_per_worker(tmp_path: Pat
         assert runs == groups and len(set(pids)) == len(groups)
     with pytest.raises(BatchError, match="episodes-per-worker"):
         BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, episodes_per_worker=-1)
+
+
+def _sleep_task(task: Any) -> Any:
+    """Stands in for ``run_task``: writes this worker's pid to the task's ``rerun_path`` and
+    sleeps (an episode still running when the batch process is killed)."""
+    import os
+    import time
+
+    Path(task.rerun_path).write_text(str(os.getpid()))
+    time.sleep(120)
+
+
+def _alive(pid: int) -> bool:
+    import os
+
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    stat = Path(f"/proc/{pid}/stat")  # a zombie is dead too
+    return not (stat.exists() and stat.read_text().split(") ")[-1].startswith("Z"))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_workers_end_when_the_batch_process_is_killed(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import time
+
+    pidfile = tmp_path / "worker.pid"
+    driver = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_batch import _sleep_task
+from simn_sim.experiments.batch_local import run_local
+from simn_sim.experiments.batch_worker import EpisodeTask
+ep = {{"episode_id": "a", "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}}
+run_local([EpisodeTask("SimnOffice-v0", {{}}, "oracle", {{}}, ep, {str(pidfile)!r})], 1,
+          lambda t, r: None, fn=_sleep_task)
+"""
+    proc = subprocess.Popen([sys.executable, "-c", driver])
+    try:
+        t0 = time.monotonic()
+        while not pidfile.exists() or not pidfile.read_text():
+            assert time.monotonic() - t0 < 60, "the worker never started"
+            assert proc.poll() is None, "the driver ended early"
+            time.sleep(0.2)
+        worker = int(pidfile.read_text())
+        assert _alive(worker)
+        proc.send_signal(signal.SIGKILL)  # no clean-up runs in the batch process
+        proc.wait(10)
+        t0 = time.monotonic()
+        while _alive(worker) and time.monotonic() - t0 < 10:
+            time.sleep(0.1)
+        assert not _alive(worker), "the worker outlived the batch process"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if pidfile.exists() and pidfile.read_text() and _alive(int(pidfile.read_text())):
+            os.kill(int(pidfile.read_text()), signal.SIGKILL)
 
 
 def test_same_episode_id_with_another_spec_is_refused(tmp_path: Path) -> None:

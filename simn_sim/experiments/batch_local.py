@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import os
+import sys
 from collections.abc import Callable, Sequence
 
 from simn_sim.experiments.batch_worker import (
@@ -31,6 +33,23 @@ __all__ = ["ResultSink", "run_inprocess", "run_local"]
 #: Called with each task and its result as soon as it is done (in the driver process).
 ResultSink = Callable[[EpisodeTask, EpisodeResult], None]
 TaskFn = Callable[[EpisodeTask], EpisodeResult]
+
+
+def _worker_init(threads: int) -> None:
+    """A pool process's initializer: :func:`limit_threads`, and on Linux the kernel ends the
+    process when the batch process dies (``PR_SET_PDEATHSIG``): a batch killed outright would
+    otherwise leave its workers running, each holding gigabytes."""
+    limit_threads(threads)
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        pr_set_pdeathsig = 1
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0)
+        parent = multiprocessing.parent_process()
+        if parent is not None and os.getppid() != parent.pid:  # it died before the call
+            os._exit(1)
 
 
 def run_inprocess(tasks: Sequence[EpisodeTask], sink: ResultSink) -> None:
@@ -57,7 +76,7 @@ def _pool_pass(
     pool = cf.ProcessPoolExecutor(
         max_workers=width,
         mp_context=multiprocessing.get_context("spawn"),
-        initializer=limit_threads,
+        initializer=_worker_init,
         initargs=(threads,),
     )
     inflight: dict[cf.Future, EpisodeTask] = {}
