@@ -232,12 +232,21 @@ def test_ray_backend_gives_the_same_records_as_local(tmp_path: Path) -> None:
     assert ray_.config_hash == local.config_hash
 
 
+def _pid_task(task: Any) -> Any:
+    """Stands in for ``run_task`` in a spawned worker: a clean record from this process."""
+    import os
+
+    from simn_sim.experiments.batch_worker import EpisodeResult, identity_record
+
+    rec = identity_record(task, "")
+    rec.update(error=None, termination="success", success=True)
+    return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
+
+
 def _flaky_task(task: Any) -> Any:
     """Stands in for ``run_task`` in a spawned worker: ``die-*`` episodes kill the worker
     process (``die-once`` only on its first attempt, remembered by a marker file)."""
     import os
-
-    from simn_sim.experiments.batch_worker import EpisodeResult, identity_record
 
     eid = task.episode["episode_id"]
     marker = Path(task.rerun_path) if task.rerun_path else None
@@ -245,20 +254,23 @@ def _flaky_task(task: Any) -> Any:
         if marker is not None:
             marker.touch()
         os._exit(3)
-    rec = identity_record(task, "")
-    rec.update(error=None, termination="success", success=True)
-    return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
+    return _pid_task(task)
+
+
+def _task(eid: str, rerun_path: str | None = None) -> Any:
+    """An episode task for the pool tests (their task functions never run the env)."""
+    from simn_sim.experiments.batch_worker import EpisodeTask
+
+    ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
+    return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep, rerun_path)
 
 
 def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
     from simn_sim.experiments.batch_local import run_local
-    from simn_sim.experiments.batch_worker import EpisodeTask
 
-    def task(eid: str) -> EpisodeTask:
-        ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
-        return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep, str(tmp_path / f"{eid}.mark"))
-
-    tasks = [task(e) for e in ("a", "die-once", "b", "die-always", "c")]
+    tasks = [
+        _task(e, str(tmp_path / f"{e}.mark")) for e in ("a", "die-once", "b", "die-always", "c")
+    ]
     got: dict[str, list[dict[str, Any]]] = {}
     run_local(
         tasks,
@@ -275,31 +287,15 @@ def test_local_pool_survives_a_dying_worker(tmp_path: Path) -> None:
         assert got[e][0]["error"] is None
 
 
-def _pid_task(task: Any) -> Any:
-    """Stands in for ``run_task`` in a spawned worker: a clean record from this process."""
-    import os
-
-    from simn_sim.experiments.batch_worker import EpisodeResult, identity_record
-
-    rec = identity_record(task, "")
-    rec.update(error=None, termination="success", success=True)
-    return EpisodeResult(rec, np.zeros((1, 2), np.float32), os.getpid(), "h", 1.0)
-
-
 def test_local_pool_replaces_its_workers_after_episodes_per_worker(tmp_path: Path) -> None:
     from simn_sim.experiments.batch_local import run_local
-    from simn_sim.experiments.batch_worker import EpisodeTask
-
-    def task(eid: str) -> EpisodeTask:
-        ep = {"episode_id": eid, "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}
-        return EpisodeTask("SimnOffice-v0", {}, "oracle", {}, ep)
 
     ids = ["a", "b", "c", "d", "e"]
 
     def pids_in_order(per_worker: int) -> list[int]:
         order: list[tuple[str, int]] = []
         run_local(
-            [task(e) for e in ids],
+            [_task(e) for e in ids],
             1,
             lambda t, r: order.append((r.record["episode_id"], r.pid)),
             fn=_pid_task,
@@ -348,12 +344,9 @@ def test_workers_end_when_the_batch_process_is_killed(tmp_path: Path) -> None:
     driver = f"""
 import sys
 sys.path.insert(0, {str(Path(__file__).parent)!r})
-from test_batch import _sleep_task
+from test_batch import _sleep_task, _task
 from simn_sim.experiments.batch_local import run_local
-from simn_sim.experiments.batch_worker import EpisodeTask
-ep = {{"episode_id": "a", "layout_seed": None, "seed": 0, "start": [0, 0, 0], "goal": [1, 1]}}
-run_local([EpisodeTask("SimnOffice-v0", {{}}, "oracle", {{}}, ep, {str(pidfile)!r})], 1,
-          lambda t, r: None, fn=_sleep_task)
+run_local([_task("a", {str(pidfile)!r})], 1, lambda t, r: None, fn=_sleep_task)
 """
     proc = subprocess.Popen([sys.executable, "-c", driver])
     try:
