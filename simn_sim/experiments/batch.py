@@ -427,8 +427,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--episodes-per-worker",
         type=int,
         default=BatchConfig.episodes_per_worker,
-        help="replace a worker process after this many episodes; its memory grows with each "
-        "(0: never; default %(default)s)",
+        help="replace the worker processes after about this many episodes each (a local pool of "
+        "W runs N x W, then a fresh pool follows); their memory grows with each (0: never; "
+        "default %(default)s)",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -42,8 +42,9 @@ class BatchConfig(Config):
     agent_config: dict[str, Any] = dataclasses.field(default_factory=dict)
     ray_address: str | None = None
     threads_per_worker: int = 1
-    # a worker process runs at most this many episodes, then a fresh one takes over (0: no
-    # limit): its memory grows with each episode (see batch_local)
+    # worker processes are replaced after about this many episodes each (a local pool of W
+    # processes runs at most this x W; a Ray worker this many); 0: never. Their memory grows
+    # with each episode (see batch_local)
     episodes_per_worker: int = 8
     progress: bool = True
     plots: bool = True
