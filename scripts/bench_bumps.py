@@ -149,14 +149,17 @@ def main() -> None:
     doors_x = [d.center[0] for d in env.unwrapped.layout.doors if d.axis == "x"]
     xs = [x for x in np.arange(3.0, x_hi, 1.7) if min(abs(x - dx) for dx in doors_x) > 1.5][:6]
     n = 0
+
+    def far_goal(x: float) -> tuple[float, float]:  # the drive never ends in success
+        return (x_lo if x > 12.0 else x_hi, y_mid)
+
     for inc in (0.0, 30.0, 50.0, 65.0, 75.0):
         for v in (0.3, 0.55, 0.8):
             x = xs[n % len(xs)]
             n += 1
             yaw = math.pi / 2 - math.radians(inc)
             start = (x, y_n - 0.8, yaw)
-            goal = (x_lo if x > 12.0 else x_hi, y_mid)  # far: the drive never ends in success
-            spec = EpisodeSpec(f"hit{n}", None, start, goal, seed=700 + n)
+            spec = EpisodeSpec(f"hit{n}", None, start, far_goal(x), seed=700 + n)
             rows = drive(env, spec, lambda pose, k, v=v: [v, 0.0], 80)
             if any(r["contact"] for r in rows):
                 hits.append(({"kind": "wall", "incidence_deg": inc, "v": v, "x": x}, rows))
@@ -166,8 +169,7 @@ def main() -> None:
                 x = xs[n % len(xs)]
                 n += 1
                 start = (x, y_n - 0.5, math.pi / 2 - math.radians(inc))
-                goal = (x_lo if x > 12.0 else x_hi, y_mid)
-                spec = EpisodeSpec(f"glance{n}", None, start, goal, seed=700 + n)
+                spec = EpisodeSpec(f"glance{n}", None, start, far_goal(x), seed=700 + n)
                 rows = drive(env, spec, glancing_policy(y_n, v, w_away), 80)
                 if any(r["contact"] for r in rows):
                     meta = {"kind": "glancing", "incidence_deg": inc, "v": v, "w": w_away, "x": x}

@@ -72,8 +72,8 @@ class BumpDetector:
             return False
         want = v_cmd * self.control_dt
         dx, dy = float(T_step[0, 3]), float(T_step[1, 3])
-        bad = dx < self.min_progress * want or abs(dy) > self.max_slip
-        ratio = dx / want
+        ratio = dx / want  # want > 0.01 m here
+        bad = ratio < self.min_progress or abs(dy) > self.max_slip
         if self.rel_progress > 0 and len(self._ratios) == self._ratios.maxlen:
             bad = bad or ratio < self.rel_progress * float(np.median(self._ratios))
         self._ratios.append(ratio)

@@ -82,9 +82,13 @@ def _pool_pass(
     inflight: dict[cf.Future, EpisodeTask] = {}
     broken = False
     submitted = 0
+
+    def more() -> bool:  # a task is waiting and the budget allows it
+        return bool(queue) and (budget <= 0 or submitted < budget)
+
     try:
-        while inflight or (queue and (budget <= 0 or submitted < budget)):
-            while queue and len(inflight) < width and (budget <= 0 or submitted < budget):
+        while inflight or more():
+            while len(inflight) < width and more():
                 t = queue.pop()
                 inflight[pool.submit(fn, t)] = t
                 submitted += 1
