@@ -3,7 +3,8 @@
 Writes ``OUT/<episode_id>.jsonl`` (one line per step: true and estimated pose in the world
 frame, the estimate's position error ``pos_err`` against the pose of the observation it was
 made from (``true`` is the pose after the step's action, so ``est`` lags it by one step), the
-agent's state and route kind, the remaining planned length, the true and the
+agent's state and route kind, the front-end's tracking outcome (``track``), the people's
+true positions (``people``, dynamic env), the remaining planned length, the true and the
 agent's own distance to the goal, the action) and ``OUT/<episode_id>.png`` (the floor plan, the
 true and the estimated trajectory, the goal, and the planned path every ``--path-every`` steps).
 
@@ -26,6 +27,10 @@ from simn_sim.agents import make_agent
 from simn_sim.env.episodes import EpisodeSet
 from simn_sim.experiments.plots import FLOORPLAN_Z_BAND, _plt
 from simn_sim.geometry.paths import path_length
+
+
+def _finite(x) -> float | None:
+    return None if x is None or not np.isfinite(x) else float(x)
 
 
 def trace(
@@ -68,7 +73,24 @@ def trace(
             "action": [float(a[0]), float(a[1])],
             "collided": bool(info["collided"]),
         }
+        slam = getattr(getattr(agent, "world", None), "slam", None)
+        last = getattr(slam, "last", None)
+        if last is not None:  # the front-end's step: tracking outcome, frame, revisit
+            row["track"] = {
+                "ok": bool(last.success),
+                "reason": last.reason,
+                "rms": _finite(last.inlier_rms),
+                "frame": int(last.frame_id),
+                "new_frame": bool(last.new_local_frame),
+                "revisit": last.revisit_frame,
+                "window_sigmas": _finite(getattr(slam.tracker, "window_sigmas", None)),
+            }
+        people = getattr(env.unwrapped, "_people", None)
+        if people is not None and len(people.pos):  # true positions after the step (world)
+            row["people"] = np.round(np.asarray(people.pos, float), 3).tolist()
         if est is not None:
+            dyaw = np.arctan2(est[1, 0], est[0, 0]) - np.arctan2(T_obs[1, 0], T_obs[0, 0])
+            row["yaw_err"] = float(np.degrees(np.angle(np.exp(1j * dyaw))))  # (-180, 180]
             row["dist_est"] = float(np.hypot(*(goal_w - est[:2, 3])))
             row["pos_err"] = float(np.hypot(*(est[:2, 3] - T_obs[:2, 3])))
         rows.append(row)

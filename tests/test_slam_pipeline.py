@@ -350,3 +350,75 @@ def test_revisit_check_registers_against_the_chosen_map(desk, target):
     assert dt < 0.01 and np.degrees(dr) < 0.5, (dt, np.degrees(dr))
     # the surface store's SDF is built for the check only when it is the target
     assert (slam.frames.states[0].loop_sdf is not None) == (target == "points")
+
+
+def _fwd(z: float) -> np.ndarray:
+    T = np.eye(4)
+    T[2, 3] = z  # camera frame: forward is +z
+    return T
+
+
+def test_odometry_window_falls_back_when_tracking_slides_off_the_odometry():
+    """Odometry steps 0.08 m forward (sigma 2 mm + 0.02 x 0.08 = 3.6 mm per frame); the
+    tracked steps are 1 cm longer. After n sliding frames the window statistic is
+    0.01 n / (3.6 mm sqrt(n)) = 2.78 sqrt(n): 4.81 at n = 3, 5.56 at n = 4, so the gate of 5
+    fires at the 4th, and the pose is then the window's start moved by the odometry; the
+    window restarts there, so it fires again 4 frames later. Frames tracked exactly along the
+    odometry never fire."""
+    from simn_sim.slam.frames import LocalFrames
+    from simn_sim.slam.track import Tracker, TrackResult
+
+    cfg = SlamConfig(
+        map_kind="points",
+        odom_prior_sigma_trans=0.002,
+        odom_prior_sigma_trans_per_m=0.02,
+        odom_window=10,
+        odom_window_sigmas=5.0,
+    )
+    tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
+    tr.start(0.0)
+    tr.commit(0.0, np.eye(4), np.eye(4))
+    prior, fired, stats = np.eye(4), [], []
+    for k in range(1, 10):
+        prior = prior @ _fwd(0.08)
+        T_prev = tr.hist[-1][1]
+        res = tr._check_window(TrackResult(T_prev @ _fwd(0.09), True, "ok", 5, 0, 0.01), prior)
+        stats.append(tr.window_sigmas)
+        if not res.success:
+            fired.append(k)
+            assert "sigma off the odometry over 4 frames" in res.reason
+            # the window's start (3 frames back: 0.27 m tracked) moved by 4 odometry steps
+            np.testing.assert_allclose(res.T_anchor_cam, T_prev @ _fwd(-0.27 + 0.32), atol=1e-9)
+        tr.commit(float(k), res.T_anchor_cam, prior)
+    n = np.arange(1, 5)
+    np.testing.assert_allclose(stats[:4], 0.01 * n / (0.0036 * np.sqrt(n)), rtol=1e-6)
+    assert fired == [4, 8]
+    for k in range(10, 30):  # tracked exactly along the odometry
+        prior = prior @ _fwd(0.08)
+        res = tr._check_window(
+            TrackResult(tr.hist[-1][1] @ _fwd(0.08), True, "ok", 5, 0, 0.01), prior
+        )
+        assert res.success
+        n = k - 8  # frames in the window since the restart, frame 9's 1 cm among them
+        expect = 0.01 / (0.0036 * np.sqrt(n)) if n <= 10 else 0.0
+        assert abs(tr.window_sigmas - expect) < 1e-6, (k, tr.window_sigmas)
+        tr.commit(float(k), res.T_anchor_cam, prior)
+    with pytest.raises(ValueError, match="odom_window"):
+        SlamConfig(odom_window=-1)
+    with pytest.raises(ValueError, match="odom_window_sigmas"):
+        SlamConfig(odom_window_sigmas=0.0)
+
+
+def test_odometry_window_keeps_a_correct_registration(desk):
+    """With the odometry exact (the ground-truth increments) the window test never overrules
+    the registration on the desk sequence, and the ATE target holds."""
+    seq = read_tum(desk)
+    cfg = SlamConfig(map_kind="points", odom_window=10, odom_window_sigmas=5.0)
+    slam = SimnSlam(cfg, seq.intrinsics, read_base(desk))
+    gt = []
+    for fr in seq:
+        out = slam.process(fr.timestamp, fr.rgb, fr.depth, fr.T_world_cam)
+        assert "odometry over" not in out.reason, out.reason
+        gt.append((fr.timestamp, fr.T_world_cam))
+    assert np.isfinite(slam.tracker.window_sigmas)
+    assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01

@@ -220,6 +220,14 @@ class SlamConfig(Config):
     # innovation gate: a fused correction beyond this Mahalanobis distance under the motion
     # prior's covariance is rejected (the prediction is kept); 0 disables
     gate_sigmas: float = 12.0
+    # odometry consistency over a window: the tracked motion over the last odom_window
+    # frames (this one included) against the odometry's over the same frames, in sigmas of the
+    # odometry increments' (odom_prior_sigma_*) summed variances, largest of rotation and
+    # translation; beyond odom_window_sigmas the pose is the odometry's from the window's
+    # start (a registration that slid step by step inside gate_sigmas: a corridor, a person in
+    # view). 0 frames: no window test; needs odometry priors
+    odom_window: int = 0
+    odom_window_sigmas: float = 5.0
     # a tracking registration moving the prediction further is rejected (revisit checks have
     # their own, wider budget: loop.max_correction_*)
     track_max_correction_m: float = 0.3
@@ -370,6 +378,8 @@ class SlamConfig(Config):
             "must be >= 0",
         )
         require(self.gate_sigmas >= 0, n, "gate_sigmas", "must be >= 0 (0: no gate)")
+        require(self.odom_window >= 0, n, "odom_window", "must be >= 0 (0: no window test)")
+        require(self.odom_window_sigmas > 0, n, "odom_window_sigmas", "must be > 0")
         require(self.track_max_correction_m > 0, n, "track_max_correction_m", "must be > 0")
         require(0 <= self.weak_ratio < 1, n, "weak_ratio", "must be in [0, 1)")
         require(self.prior_sigma_rot_deg > 0, n, "prior_sigma_rot_deg", "must be > 0")

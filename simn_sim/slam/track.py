@@ -11,6 +11,7 @@ tracking, and every such fallback is counted by the caller.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 from typing import Any
 
@@ -68,6 +69,11 @@ class Tracker:
         )
         self.hist: list[tuple[float, np.ndarray]] = []  # (t, T_anchor_cam) of the last two
         self.last_prior: np.ndarray | None = None
+        # odometry window (odom_window): per committed frame, the tracked and the odometry
+        # increment (4, 4) and the odometry increment's rotation and translation variances
+        self._window: collections.deque = collections.deque(maxlen=max(cfg.odom_window - 1, 0))
+        self._window_reset = False  # this frame fell back to the odometry: restart the window
+        self.window_sigmas = float("nan")  # the last frame's window statistic (diagnostics)
         self._rms_ema: float | None = None  # running inlier RMS of the registrations
         # SDF caches of the learned maps tracked against (implicit_cache_voxel), per frame id
         self.caches: dict[int, SdfCache] = {}
@@ -231,6 +237,14 @@ class Tracker:
         self.hist = [(t, T_new_old @ T) for t, T in self.hist]
 
     def commit(self, t: float, T_anchor_cam: np.ndarray, prior: np.ndarray | None) -> None:
+        if self.cfg.odom_window > 0:
+            if self._window_reset or prior is None or self.last_prior is None or not self.hist:
+                self._window.clear()
+            else:
+                sr, st = self._odom_sigmas(prior)
+                inc = inv_T(self.hist[-1][1]) @ T_anchor_cam
+                self._window.append((inc, inv_T(self.last_prior) @ prior, sr**2, st**2))
+            self._window_reset = False
         self.hist = (self.hist + [(t, T_anchor_cam)])[-2:]
         self.last_prior = prior
 
@@ -254,9 +268,45 @@ class Tracker:
         c = self.cfg
         if c.odom_prior_sigma_rot_per_unit == 0 and c.odom_prior_sigma_trans_per_m == 0:
             return self._odom_info
+        return _info(*self._odom_sigmas(prior))
+
+    def _odom_sigmas(self, prior: np.ndarray) -> tuple[float, float]:
+        """(rotation rad, translation m) sigmas of the odometry increment to ``prior``."""
+        c = self.cfg
         dist, ang = pose_error(self.last_prior, prior)
         sr = np.radians(c.odom_prior_sigma_rot_deg) + c.odom_prior_sigma_rot_per_unit * (ang + dist)
-        return _info(sr, c.odom_prior_sigma_trans + c.odom_prior_sigma_trans_per_m * dist)
+        return float(sr), float(c.odom_prior_sigma_trans + c.odom_prior_sigma_trans_per_m * dist)
+
+    def _check_window(self, res: TrackResult, prior: np.ndarray) -> TrackResult:
+        """The odometry window test (``odom_window``): the tracked motion from the window's
+        start to ``res`` against the odometry's, in sigmas of the odometry increments' summed
+        variances (largest of rotation and translation, as :attr:`window_sigmas`). Beyond
+        ``odom_window_sigmas``: the pose from the window's start moved by the odometry, a
+        failed result, and the window restarts there."""
+        T_prev = self.hist[-1][1]
+        E, O = np.eye(4), np.eye(4)  # tracked and odometry motion over the previous frames
+        var_r = var_t = 0.0
+        for inc, odo, vr, vt in self._window:
+            E, O = E @ inc, O @ odo
+            var_r, var_t = var_r + vr, var_t + vt
+        sr, st = self._odom_sigmas(prior)
+        odom_rel = O @ (inv_T(self.last_prior) @ prior)
+        est_rel = E @ (inv_T(T_prev) @ res.T_anchor_cam)
+        d = se3_log(inv_T(odom_rel) @ est_rel)
+        m = max(
+            float(np.linalg.norm(d[:3])) / np.sqrt(var_r + sr**2),
+            float(np.linalg.norm(d[3:])) / np.sqrt(var_t + st**2),
+        )
+        self.window_sigmas = m
+        if m <= self.cfg.odom_window_sigmas:
+            return res
+        self._window_reset = True
+        T_fb = orthonormalize(T_prev @ inv_T(E) @ odom_rel)
+        why = (
+            f"tracked motion {m:.1f} sigma off the odometry over {len(self._window) + 1} frames"
+            f" (window gate {self.cfg.odom_window_sigmas:g})"
+        )
+        return TrackResult(T_fb, False, why, res.iterations, res.against, res.rms)
 
     def track(self, pts: np.ndarray, T_pred: np.ndarray, prior: np.ndarray | None) -> TrackResult:
         """Register ``pts`` starting from ``T_pred`` (anchor coordinates)."""
@@ -265,6 +315,9 @@ class Tracker:
         if res.success:
             self.update_rms(res.rms)
         res.T_anchor_cam = orthonormalize(res.T_anchor_cam)
+        self.window_sigmas = float("nan")
+        if use_odom and self.cfg.odom_window > 0:
+            res = self._check_window(res, prior)
         return res
 
     def register_c2f(self, pts: np.ndarray, sdf, T_init: np.ndarray, reg_cfg, up=None):
