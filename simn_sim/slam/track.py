@@ -284,13 +284,13 @@ class Tracker:
         ``odom_window_sigmas``: the pose from the window's start moved by the odometry, a
         failed result, and the window restarts there."""
         T_prev = self.hist[-1][1]
-        E, O = np.eye(4), np.eye(4)  # tracked and odometry motion over the previous frames
+        E, D = np.eye(4), np.eye(4)  # tracked and odometry motion over the previous frames
         var_r = var_t = 0.0
         for inc, odo, vr, vt in self._window:
-            E, O = E @ inc, O @ odo
+            E, D = E @ inc, D @ odo
             var_r, var_t = var_r + vr, var_t + vt
         sr, st = self._odom_sigmas(prior)
-        odom_rel = O @ (inv_T(self.last_prior) @ prior)
+        odom_rel = D @ (inv_T(self.last_prior) @ prior)
         est_rel = E @ (inv_T(T_prev) @ res.T_anchor_cam)
         d = se3_log(inv_T(odom_rel) @ est_rel)
         m = max(
