@@ -211,21 +211,25 @@ def test_points_agent_preset_runs_cheaply(desk):
     assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01
 
 
+def _tracker(**changes):
+    """A point-store Tracker with no map, for the odometry prior and window logic."""
+    from simn_sim.slam.frames import LocalFrames
+    from simn_sim.slam.track import Tracker
+
+    cfg = SlamConfig(map_kind="points", **changes)
+    return Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
+
+
 def test_odometry_prior_grows_with_the_motion():
     """The odometry increment's sigma is the constant plus the per-unit growth times the motion
     (a 0.08 m step with a 0.05 rad turn: rot 0.1 deg + 0.02 x 0.13, trans 2 mm + 0.02 x 0.08
     m); without growth terms, the constant information; negative growth is a config error."""
-    from simn_sim.slam.frames import LocalFrames
-    from simn_sim.slam.track import Tracker
-
-    cfg = SlamConfig(
-        map_kind="points",
+    tr = _tracker(
         odom_prior_sigma_rot_deg=0.1,
         odom_prior_sigma_trans=0.002,
         odom_prior_sigma_rot_per_unit=0.02,
         odom_prior_sigma_trans_per_m=0.02,
     )
-    tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
     tr.last_prior = np.eye(4)
     step = np.eye(4)
     c, s = np.cos(0.05), np.sin(0.05)
@@ -234,8 +238,7 @@ def test_odometry_prior_grows_with_the_motion():
     sig = 1.0 / np.sqrt(np.diag(tr.odom_info(step)))
     np.testing.assert_allclose(sig[:3], np.radians(0.1) + 0.02 * 0.13, rtol=1e-9)
     np.testing.assert_allclose(sig[3:], 0.002 + 0.02 * 0.08, rtol=1e-9)
-    const = SlamConfig(map_kind="points", odom_prior_sigma_rot_deg=0.1)
-    tr0 = Tracker(const, LocalFrames(const), np.random.default_rng(0))
+    tr0 = _tracker(odom_prior_sigma_rot_deg=0.1)
     tr0.last_prior = np.eye(4)
     sig0 = 1.0 / np.sqrt(np.diag(tr0.odom_info(step)))
     np.testing.assert_allclose(sig0, [np.radians(0.1)] * 3 + [0.005] * 3, rtol=1e-9)
@@ -251,8 +254,6 @@ def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
     from types import SimpleNamespace
 
     from simn_sim.geometry.se3 import se3_exp
-    from simn_sim.slam.frames import LocalFrames
-    from simn_sim.slam.track import Tracker
     from simn_sim.tracking.lie import se3_log
 
     delta = np.array([0.002, -0.001, 0.003, 0.01, -0.004, 0.006])
@@ -262,10 +263,7 @@ def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
     res = SimpleNamespace(covariance=np.diag(var), eig_ratio=1.0)
     # (rotation scale, translation scale): track_cov_scale_trans 0 takes the rotation's
     for s, st in ((1.0, 0.0), (30.0, 0.0), (30.0, 1000.0)):
-        cfg = SlamConfig(
-            map_kind="points", track_cov_scale=s, track_cov_scale_trans=st, gate_sigmas=0.0
-        )
-        tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
+        tr = _tracker(track_cov_scale=s, track_cov_scale_trans=st, gate_sigmas=0.0)
         T_pred = np.eye(4)
         fused = tr._fuse(pts, T_pred, se3_exp(delta), res, prior_info)
         info = 1.0 / (np.array([s] * 3 + [st or s] * 3) * var)
@@ -365,17 +363,14 @@ def test_odometry_window_falls_back_when_tracking_slides_off_the_odometry():
     fires at the 4th, and the pose is then the window's start moved by the odometry; the
     window restarts there, so it fires again 4 frames later. Frames tracked exactly along the
     odometry never fire."""
-    from simn_sim.slam.frames import LocalFrames
-    from simn_sim.slam.track import Tracker, TrackResult
+    from simn_sim.slam.track import TrackResult
 
-    cfg = SlamConfig(
-        map_kind="points",
+    tr = _tracker(
         odom_prior_sigma_trans=0.002,
         odom_prior_sigma_trans_per_m=0.02,
         odom_window=10,
         odom_window_sigmas=5.0,
     )
-    tr = Tracker(cfg, LocalFrames(cfg), np.random.default_rng(0))
     tr.start(0.0)
     tr.commit(0.0, np.eye(4), np.eye(4))
     prior, fired, stats = np.eye(4), [], []
