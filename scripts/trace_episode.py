@@ -27,10 +27,11 @@ from simn_sim.agents import make_agent
 from simn_sim.env.episodes import EpisodeSet
 from simn_sim.experiments.plots import FLOORPLAN_Z_BAND, _plt
 from simn_sim.geometry.paths import path_length
+from simn_sim.geometry.se3 import inv_T, yaw_of
 
 
-def _finite(x) -> float | None:
-    return None if x is None or not np.isfinite(x) else float(x)
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def trace(
@@ -83,14 +84,13 @@ def trace(
                 "frame": int(last.frame_id),
                 "new_frame": bool(last.new_local_frame),
                 "revisit": last.revisit_frame,
-                "window_sigmas": _finite(getattr(slam.tracker, "window_sigmas", None)),
+                "window_sigmas": _finite(slam.tracker.window_sigmas),
             }
         people = getattr(env.unwrapped, "_people", None)
         if people is not None and len(people.pos):  # true positions after the step (world)
             row["people"] = np.round(np.asarray(people.pos, float), 3).tolist()
         if est is not None:
-            dyaw = np.arctan2(est[1, 0], est[0, 0]) - np.arctan2(T_obs[1, 0], T_obs[0, 0])
-            row["yaw_err"] = float(np.degrees(np.angle(np.exp(1j * dyaw))))  # (-180, 180]
+            row["yaw_err"] = float(np.degrees(yaw_of(inv_T(T_obs) @ est)))  # (-180, 180]
             row["dist_est"] = float(np.hypot(*(goal_w - est[:2, 3])))
             row["pos_err"] = float(np.hypot(*(est[:2, 3] - T_obs[:2, 3])))
         rows.append(row)
