@@ -24,6 +24,7 @@ drive is recorded once and replayed through the detector variants, so they see t
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 from pathlib import Path
@@ -64,8 +65,10 @@ def drive(env, spec: EpisodeSpec, policy, steps: int) -> list[dict]:
         rows.append(
             {
                 "v": float(a[0]),
+                "w": float(a[1]),
                 "dx": float(d[0, 3]),
                 "dy": float(d[1, 3]),
+                "dyaw": float(math.atan2(d[1, 0], d[0, 0])),
                 "contact": bool(info["collided"]),
             }
         )
@@ -112,15 +115,16 @@ def glancing_policy(y_wall: float, v: float, w_away: float):
     return pol
 
 
-def replay(rows: list[dict], min_progress: float, dt: float, rel: float = 0.0) -> list[int]:
-    """The steps at which a detector with ``min_progress`` (and ``rel_progress`` ``rel``)
-    fires."""
-    det = BumpDetector(dt, min_progress=min_progress, rel_progress=rel)
+def replay(
+    rows: list[dict], min_progress: float, dt: float, rel: float = 0.0, yaw: float = 0.0
+) -> list[int]:
+    """The steps at which a detector with ``min_progress`` (``rel_progress`` ``rel``,
+    ``yaw_tol`` ``yaw``) fires."""
+    det = BumpDetector(dt, min_progress=min_progress, rel_progress=rel, yaw_tol=yaw)
     fired = []
     for k, r in enumerate(rows):
-        T = np.eye(4)
-        T[0, 3], T[1, 3] = r["dx"], r["dy"]
-        if det.update(r["v"], T):  # the command and the odometry over the step it drove
+        T = planar_T(r["dx"], r["dy"], r["dyaw"])
+        if det.update(r["v"], T, r["w"]):  # the command and the odometry over the step it drove
             fired.append(k)
     return fired
 
@@ -134,6 +138,7 @@ def main() -> None:
     ap.add_argument(
         "--rel", type=float, nargs="+", default=[0.0], help="rel_progress values (0: off)"
     )
+    ap.add_argument("--yaw", type=float, nargs="+", default=[0.0], help="yaw_tol values (0: off)")
     args = ap.parse_args()
     env = gym.make("SimnOffice-v0", config={"width": 64, "height": 48})  # realistic sensing
     y_mid, y_n = corridor(env)
@@ -185,6 +190,17 @@ def main() -> None:
         str(q): float(np.quantile(free_ratio, q)) if free_ratio else None
         for q in (0.0, 0.001, 0.01, 0.05, 0.5)
     }
+    # the turning test's statistic: the yaw-rate error beyond the actuation noise's gain band
+    yaw_excess = [
+        abs(r["dyaw"] / dt - r["w"]) - 0.5 * abs(r["w"])
+        for rows in free
+        for r in rows
+        if r["v"] > 0.1 and not r["contact"]
+    ]
+    report["free_yaw_excess_quantiles"] = {
+        str(q): float(np.quantile(yaw_excess, q)) if yaw_excess else None
+        for q in (0.5, 0.95, 0.99, 0.999, 1.0)
+    }
     contact_ratio = [r["dx"] / (r["v"] * dt) for _, rows in hits for r in rows if r["contact"]]
     report["contact_progress_ratio_quantiles"] = {
         str(q): float(np.quantile(contact_ratio, q)) for q in (0.5, 0.9, 0.99, 1.0)
@@ -192,36 +208,35 @@ def main() -> None:
     report["contact_drives_by_kind"] = {
         k: sum(m["kind"] == k for m, _ in hits) for k in ("wall", "glancing")
     }
-    for t in args.thresholds:
-        for rel in args.rel:
-            false = 0
-            for rows in free:
-                for k in replay(rows, t, dt, rel):
-                    if not any(r["contact"] for r in rows[max(0, k - 4) : k + 1]):
-                        false += 1
-            entry: dict = {
-                "false_bumps": false,
-                "false_per_1000_forward_steps": 1000.0 * false / max(fwd, 1),
+    for t, rel, yaw in itertools.product(args.thresholds, args.rel, args.yaw):
+        false = 0
+        for rows in free:
+            for k in replay(rows, t, dt, rel, yaw):
+                if not any(r["contact"] for r in rows[max(0, k - 4) : k + 1]):
+                    false += 1
+        entry: dict = {
+            "false_bumps": false,
+            "false_per_1000_forward_steps": 1000.0 * false / max(fwd, 1),
+        }
+        for kind in ("wall", "glancing"):
+            delays, missed = [], []
+            for meta, rows in hits:
+                if meta["kind"] != kind:
+                    continue
+                first = next(k for k, r in enumerate(rows) if r["contact"])
+                f = [k for k in replay(rows, t, dt, rel, yaw) if k >= first]
+                if f:
+                    delays.append(f[0] - first)
+                else:
+                    missed.append(meta)
+            entry[kind] = {
+                "detected": len(delays),
+                "delay_steps_max": max(delays) if delays else None,
+                "delay_steps_median": float(np.median(delays)) if delays else None,
+                "missed": missed,
             }
-            for kind in ("wall", "glancing"):
-                delays, missed = [], []
-                for meta, rows in hits:
-                    if meta["kind"] != kind:
-                        continue
-                    first = next(k for k, r in enumerate(rows) if r["contact"])
-                    f = [k for k in replay(rows, t, dt, rel) if k >= first]
-                    if f:
-                        delays.append(f[0] - first)
-                    else:
-                        missed.append(meta)
-                entry[kind] = {
-                    "detected": len(delays),
-                    "delay_steps_max": max(delays) if delays else None,
-                    "delay_steps_median": float(np.median(delays)) if delays else None,
-                    "missed": missed,
-                }
-            key = str(t) if rel == 0 else f"{t}, rel {rel}"
-            report["thresholds"][key] = entry
+        key = str(t) + (f", rel {rel}" if rel else "") + (f", yaw {yaw}" if yaw else "")
+        report["thresholds"][key] = entry
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bumps.json").write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))

@@ -64,6 +64,8 @@ def trace(
         row = {
             "step": step,
             "true": [float(T_true[0, 3]), float(T_true[1, 3])],
+            "yaw": float(np.degrees(yaw_of(T_true))),
+            "odom": [float(v) for v in obs["odometry"]],  # (x, y, yaw rad) after the step
             "est": None if est is None else [float(est[0, 3]), float(est[1, 3])],
             "state": agent.state(),
             "route": dbg.get("route"),

@@ -8,13 +8,14 @@ import pytest
 
 from simn_sim.agents.recovery import BumpDetector
 from simn_sim.env.episodes import EpisodeSet
-from simn_sim.env.noise import ActuationNoise
+from simn_sim.env.noise import ActuationNoise, odometry_step
 from simn_sim.env.office import load_layout
 from simn_sim.env.office_config import EnvConfig
 from simn_sim.env.scene import ROBOT_RADIUS, ROBOT_Z_BAND
 from simn_sim.env.traps import trap_info
 from simn_sim.experiments.runner import run_episode
 from simn_sim.geometry.freespace import FreeSpace2D
+from simn_sim.geometry.se3 import inv_T, planar_T
 from simn_sim.paths import envs_dir
 from simn_sim.semantics import OBSTACLE
 
@@ -72,10 +73,8 @@ def test_same_seed_same_episode_record_under_realistic_sensing():
             assert a[k] == b[k], k
 
 
-def _step(dx: float, dy: float) -> np.ndarray:
-    T = np.eye(4)
-    T[0, 3], T[1, 3] = dx, dy
-    return T
+def _step(dx: float, dy: float, dyaw: float = 0.0) -> np.ndarray:
+    return planar_T(dx, dy, dyaw)
 
 
 def _free_drive_bumps(min_progress: float, episodes: int, steps: int, rel: float = 0.0) -> int:
@@ -123,6 +122,69 @@ def test_relative_progress_catches_a_drop_the_noise_does_not_make():
     for rel, want in ((0.0, [False] * 7), (0.5, [False] * 6 + [True])):
         det = BumpDetector(0.1, rel_progress=rel)
         assert [det.update(0.7, _step(0.07 * p, -0.007)) for p in seq] == want
+
+
+def _free_turning_bumps(yaw_tol: float, episodes: int, steps: int) -> int:
+    """Bumps a detector with the turning test fires over free driving with turns: commands
+    held for 10 steps at 0.2-0.8 m/s and -1.5 to 1.5 rad/s (the follower's limits), executed
+    through the env's realistic actuation noise and read back through its wheel odometry (both
+    the env's own models, seeded)."""
+    rng = np.random.default_rng(1)
+    cfg = EnvConfig()
+    noise = ActuationNoise(cfg.actuation_noise, 0.1)
+    fired = 0
+    for _ in range(episodes):
+        noise.reset(rng)
+        det = BumpDetector(0.1, rel_progress=0.5, yaw_tol=yaw_tol)
+        pose, odom = np.zeros(3), np.zeros(3)
+        for k in range(steps):
+            if k % 10 == 0:
+                v_cmd, w_cmd = rng.uniform(0.2, 0.8), rng.uniform(-1.5, 1.5)
+            v, w = noise.apply(v_cmd, w_cmd, rng)
+            mid = pose[2] + 0.05 * w
+            new = pose + np.array([0.1 * v * np.cos(mid), 0.1 * v * np.sin(mid), 0.1 * w])
+            o = odometry_step(odom, pose, new, cfg.odom_noise_trans, cfg.odom_noise_rot, rng)
+            fired += det.update(v_cmd, inv_T(planar_T(*odom)) @ planar_T(*o), w_cmd)
+            pose, odom = new, o
+    return fired
+
+
+# dyn-L5-002, steps 231-239 (office_dynamic_v1 at 05bb03c): the command (v, w) and the wheel
+# odometry's increment (dx, dy, dyaw) of each step; the base slides past a person standing at
+# its left from the 5th step on (the env's contact flag), and the friction turns it left while
+# it is commanded right
+L5_002 = [
+    (0.36, -0.86, 0.0427, -0.0010, -0.0805),
+    (0.37, -0.59, 0.0369, -0.0010, -0.0737),
+    (0.38, -0.48, 0.0365, -0.0007, -0.0526),
+    (0.39, -0.41, 0.0378, -0.0006, -0.0429),
+    (0.39, -0.35, 0.0298, -0.0030, -0.0012),
+    (0.39, -0.33, 0.0299, -0.0058, 0.1024),
+    (0.38, -0.45, 0.0299, -0.0071, 0.1209),
+    (0.37, -0.59, 0.0325, -0.0095, 0.1320),
+    (0.35, -0.68, 0.0342, -0.0121, 0.1438),
+]
+
+
+def test_turning_test_catches_a_person_dragging_the_base():
+    """The replayed dyn-L5-002 contact is no bump for the progress tests (0.77 of the command,
+    slip under 1.2 cm) and is one with the turning test at ``yaw_tol`` 0.2, two steps after
+    the first contact, on the left (and again two steps later, the count restarted); free driving with turns under the env's actuation noise
+    and odometry drift never fires it (nor at 0.1), while a tolerance with no margin does."""
+    for tol, want in ((0.0, [False] * 9), (0.2, [False] * 6 + [True, False, True])):
+        det = BumpDetector(0.1, rel_progress=0.5, yaw_tol=tol)
+        got, angles = [], []
+        for v, w, dx, dy, dth in L5_002:
+            got.append(det.update(v, _step(dx, dy, dth), w))
+            angles += [det.contact_angle] if got[-1] else []
+        assert got == want
+    # the first by the turning test alone (60 deg left), the second by the 1.21 cm slide
+    # to the right as well (the bearing of the motion that did not happen: left)
+    assert angles[0] == pytest.approx(np.radians(60.0))
+    assert np.radians(60.0) < angles[1] < np.radians(90.0)
+    assert _free_turning_bumps(0.2, 50, 300) == 0
+    assert _free_turning_bumps(0.1, 50, 300) == 0
+    assert _free_turning_bumps(0.01, 50, 300) > 0
 
 
 # ---- map clearing: bumps expire, and a goal closed off on the map clears it ------------------
@@ -217,6 +279,9 @@ def test_map_clearing_config_is_validated(ideal_env):
     for bad in (-0.1, 1.0, float("nan")):
         with pytest.raises(ConfigError, match="bump_rel_progress"):
             make_agent("simn", ideal_env.unwrapped, {"bump_rel_progress": bad})
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ConfigError, match="bump_yaw_tol"):
+            make_agent("simn", ideal_env.unwrapped, {"bump_yaw_tol": bad})
 
 
 def test_a_plan_the_follower_refuses_is_no_route_not_a_standstill(ideal_env, monkeypatch):

@@ -107,6 +107,7 @@ class SimnAgent:
             self.control_dt,
             min_progress=self.cfg.bump_min_progress,
             rel_progress=self.cfg.bump_rel_progress,
+            yaw_tol=self.cfg.bump_yaw_tol,
         )
         self.goal = np.asarray(obs["goal"], float)
         self.T_odom_prev = self._odom_T(obs)
@@ -346,7 +347,8 @@ class SimnAgent:
     def _act(self, obs: dict) -> np.ndarray:
         self.steps += 1
         T_odom = self._odom_T(obs)
-        if self.bump.update(float(self._last_cmd[0]), inv_T(self.T_odom_prev) @ T_odom):
+        v, w = float(self._last_cmd[0]), float(self._last_cmd[1])
+        if self.bump.update(v, inv_T(self.T_odom_prev) @ T_odom, w):
             self.obstacles.add_bump(
                 self.world.pose,
                 self.cfg.obstacles.collision.robot_radius,

@@ -117,6 +117,10 @@ class SimnAgentConfig(Config):
     # forward steps (BumpDetector.rel_progress); 0: off. 0.5: no false bump in the free drives
     # of scripts/bench_bumps.py, and nav2-ref-009's turn past a low box caught (docs/navigation.md)
     bump_rel_progress: float = 0.5
+    # > 0 (rad/s): also a contact sign when a forward step's odometry yaw rate is off the
+    # command by more than this plus half the command (BumpDetector.yaw_tol: friction turning
+    # the base, e.g. sliding past a person beside it, outside the camera's view); 0: off
+    bump_yaw_tol: float = 0.0
     seed: int = 0
 
     @classmethod
@@ -152,6 +156,7 @@ class SimnAgentConfig(Config):
         require(self.clear_cooldown >= 1, n, "clear_cooldown", "must be >= 1")
         require(0 < self.bump_min_progress < 1, n, "bump_min_progress", "must be in (0, 1)")
         require(0 <= self.bump_rel_progress < 1, n, "bump_rel_progress", "must be in [0, 1)")
+        require(self.bump_yaw_tol >= 0, n, "bump_yaw_tol", "must be >= 0 rad/s (0: off)")
         require(
             0 <= self.squeeze < self.obstacles.collision.robot_radius,
             n,
