@@ -132,6 +132,10 @@ def trace(
     )
     fig.savefig(out / f"{episode.episode_id}.png", dpi=90)
     plt.close(fig)
+    if snaps:  # the planning obstacles (world x-y) at each snapshot step, for analysis
+        np.savez_compressed(
+            out / f"{episode.episode_id}_snaps.npz", **{f"step{k}": v[0] for k, v in snaps.items()}
+        )
     for k, (occ, pw) in snaps.items():
         fig, ax = plt.subplots(figsize=(8, 8))
         for poly in env.unwrapped.layout.footprints(FLOORPLAN_Z_BAND):

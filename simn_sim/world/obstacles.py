@@ -23,6 +23,7 @@ from simn_sim.planning import CollisionChecker, CollisionConfig
 from simn_sim.semantics import OBSTACLE
 from simn_sim.slam.frames import LocalFrames
 from simn_sim.world.shadow import OcclusionShadow, below_top_contour, may_continue_below_view
+from simn_sim.world.transient import TransientCells, TransientConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +38,10 @@ class ObstacleConfig(Config):
     jumps above this, m): walls and door jambs do not. blind_shadow_depth: an obstacle point at
     the image's lower border, unless on a surface seen to be vertical, may go on towards the
     camera beneath the view; the hidden space up to this far (m) is shadow too; 0: off.
-    bump_ttl: views after which a bump's points leave the models; 0: never."""
+    bump_ttl: views after which a bump's points leave the models; 0: never. transient:
+    obstacles that appear in space seen free (a person walking through a doorway) leave the
+    models after ``transient.keep_views`` views unseen (:mod:`simn_sim.world.transient`);
+    off (0) by default."""
 
     collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
     rebuild_every: int = 20
@@ -48,6 +52,7 @@ class ObstacleConfig(Config):
     # a bump's arc of points is dropped from the models after this many views (a bump at a
     # door jamb otherwise closes the doorway for good); 0: kept for the episode
     bump_ttl: int = 300
+    transient: TransientConfig = TransientConfig()
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -79,6 +84,11 @@ class ObstacleMap:
         )
         self._shadow_map = CollisionChecker(c) if self.shadow is not None else None
         self._shadow_dirty = False  # shadow cells were cleared since the shadow model was built
+        self.transient = (
+            TransientCells(cfg.transient, (c.z_min, c.z_max), c.robot_radius)
+            if cfg.transient.keep_views > 0
+            else None
+        )
         self.bump_points: list[np.ndarray] = []
         self._bump_views: list[int] = []  # the view count when each bump was added
         self._views = 0  # views integrated (the rebuild schedule)
@@ -98,8 +108,11 @@ class ObstacleMap:
 
     def model_points(self, frames: LocalFrames) -> np.ndarray:
         """(N, 3) the points the models are built from: the obstacle points of the local frames
-        from ``min_frame`` on (world coordinates) plus the bump points."""
+        from ``min_frame`` on (world coordinates) but those in expired transient cells, plus
+        the bump points."""
         pts = frames.obstacle_points_world(self.min_frame)
+        if self.transient is not None:
+            pts = pts[~self.transient.expired(pts)]
         return np.concatenate([pts, *self.bump_points]) if self.bump_points else pts
 
     def rebuild(self, frames: LocalFrames) -> None:
@@ -210,8 +223,15 @@ class ObstacleMap:
         views and whenever the pose graph moved the anchors, both models rebuilt from the local
         frames' stores (which drop points seen through: no ghosts)."""
         new_shadow = self.observe_shadow(obstacle_points, T_wc, base_xy, depth, intr, pixels)
+        expiring = False
+        if self.transient is not None:
+            c = self.cfg.collision
+            z = obstacle_points[:, 2]
+            band = obstacle_points[(z >= c.z_min) & (z <= c.z_max)]
+            self.transient.observe(band, T_wc, base_xy, depth, intr)
+            expiring = self.transient.expiring_now()
         moved = frames.anchors_version != self._anchors_version
-        if moved or self._forgot or self._views % self.cfg.rebuild_every == 0:
+        if moved or expiring or self._forgot or self._views % self.cfg.rebuild_every == 0:
             self._anchors_version = frames.anchors_version
             self._forgot = False
             self.rebuild(frames)

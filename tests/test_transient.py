@@ -1,0 +1,134 @@
+"""Transient obstacles (:mod:`simn_sim.world.transient`) on analytic depth images: a box that
+appears where the camera saw the floor leaves after ``keep_views`` views unseen; the same box
+seen without that free-space evidence stays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from simn_sim.config import ConfigError
+from simn_sim.geometry.camera import Intrinsics
+from simn_sim.world.obstacles import ObstacleConfig
+from simn_sim.world.transient import TransientCells, TransientConfig
+
+INTR = Intrinsics.from_fovy(80, 60, 90.0)
+CAM_H = 1.0
+BOX = (1.9, 2.3, -0.2, 0.2, 1.7)  # x0, x1, y0, y1, height (m): a person-sized box
+
+
+def _T_wc(yaw: float) -> np.ndarray:
+    """A level camera at (0, 0, CAM_H) looking along world heading ``yaw`` (OpenCV axes)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    T = np.eye(4)
+    # camera x (right), y (down), z (forward) in the world
+    T[:3, 0], T[:3, 1], T[:3, 2] = [s, -c, 0.0], [0.0, 0.0, -1.0], [c, s, 0.0]
+    T[2, 3] = CAM_H
+    return T
+
+
+def _depth(T_wc: np.ndarray, box: bool) -> np.ndarray:
+    """Exact depth (camera z, m) of the floor z = 0, walls at |x| = 4 and optionally BOX."""
+    v, u = np.mgrid[0 : INTR.height, 0 : INTR.width]
+    d_cam = np.stack([(u - INTR.cx) / INTR.fx, (v - INTR.cy) / INTR.fy, np.ones(u.shape)], -1)
+    d = d_cam @ T_wc[:3, :3].T  # world direction per unit of camera depth
+    o = T_wc[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.full(u.shape, np.inf)
+        t = np.where(d[..., 2] < 0, np.minimum(t, -o[2] / d[..., 2]), t)  # floor
+        for wx in (4.0, -4.0):
+            tw = (wx - o[0]) / d[..., 0]
+            t = np.where(tw > 0, np.minimum(t, tw), t)
+        if box:
+            x0, x1, y0, y1, h = BOX
+            lo, hi = np.array([x0, y0, 0.0]), np.array([x1, y1, h])
+            t0, t1 = (lo - o) / d, (hi - o) / d
+            tn = np.minimum(t0, t1).max(axis=-1)
+            tf = np.maximum(t0, t1).min(axis=-1)
+            t = np.where((tn <= tf) & (tn > 0), np.minimum(t, tn), t)
+    return np.where(np.isfinite(t), t, 0.0)
+
+
+def _box_face() -> np.ndarray:
+    """Obstacle points on the box's face towards the camera, in the height band."""
+    x0, _, y0, y1, _ = BOX
+    y, z = np.meshgrid(np.linspace(y0, y1, 9), np.linspace(0.1, 1.0, 10))
+    return np.column_stack([np.full(y.size, x0), y.ravel(), z.ravel()])
+
+
+def _cells(keep: int = 5) -> TransientCells:
+    return TransientCells(TransientConfig(keep_views=keep), (0.06, 1.0), 0.25)
+
+
+def _view(tc: TransientCells, yaw: float, box: bool) -> None:
+    T = _T_wc(yaw)
+    seen = box and np.cos(yaw) > 0.5  # the face is in view (the camera looks along +x)
+    pts = _box_face() if seen else np.zeros((0, 3))
+    tc.observe(pts, T, np.zeros(2), _depth(T, box), INTR)
+
+
+def test_free_space_test_matches_the_geometry():
+    """Facing +x over an empty floor: a column 2 m ahead is seen free; a column beyond the
+    wall at x = 4, one behind the camera and one under the robot's view (0.3 m ahead, its
+    low samples below the image) are not, but the robot's footprint is."""
+    tc = _cells()
+    _view(tc, 0.0, box=False)
+    ij = lambda x, y: tuple(np.floor(np.array([x, y]) / 0.1).astype(int) + tc.n // 2)  # noqa: E731
+    assert tc.free_at[ij(2.05, 0.05)] == 0
+    assert tc.free_at[ij(3.35, -0.45)] == 0  # within max_range, in view
+    assert tc.free_at[ij(4.25, 0.05)] < 0  # behind the wall
+    assert tc.free_at[ij(-2.05, 0.05)] < 0  # behind the camera
+    assert tc.free_at[ij(0.35, 0.05)] < 0  # the 0.1 m sample is below the image
+    assert tc.free_at[ij(0.05, 0.05)] == 0  # under the robot
+
+
+def test_an_obstacle_that_appears_in_free_space_expires_unseen():
+    """The box appears where view 0 saw the floor: its cells are transient. Turned away,
+    its points stay in the models for ``keep_views`` views and are expired after; seen again
+    before that, the count restarts; seen free again, it is no longer transient."""
+    keep = 5
+    tc = _cells(keep)
+    _view(tc, 0.0, box=False)
+    _view(tc, 0.0, box=True)  # view 1: the box appears
+    face = _box_face()
+    assert tc.n_appeared > 0 and not tc.expired(face).any()
+    for k in range(keep):  # views 2..6, facing away
+        _view(tc, np.pi, box=True)
+        assert not tc.expired(face).any(), k
+        assert not tc.expiring_now()
+    _view(tc, np.pi, box=True)  # view 7: keep_views + 1 views since the box was seen
+    assert tc.expired(face).all() and tc.expiring_now()
+    _view(tc, 0.0, box=True)  # seen again: back in the models
+    assert not tc.expired(face).any()
+    for _ in range(keep + 1):
+        _view(tc, np.pi, box=True)
+    assert tc.expired(face).all()
+    _view(tc, 0.0, box=False)  # the box left and its space is seen free: not transient
+    assert not tc.expired(face).any() and not tc.appeared.any()
+
+
+def test_an_obstacle_without_free_space_evidence_stays():
+    """The same box seen at the first view (nothing seen free there before) never expires,
+    and neither does one in a cell seen free longer than ``window`` views before."""
+    tc = _cells()
+    _view(tc, 0.0, box=True)
+    for _ in range(20):
+        _view(tc, np.pi, box=True)
+    assert not tc.expired(_box_face()).any() and tc.n_appeared == 0
+    late = TransientCells(TransientConfig(keep_views=5, window=3), (0.06, 1.0), 0.25)
+    _view(late, 0.0, box=False)
+    for _ in range(3):
+        _view(late, np.pi, box=False)
+    _view(late, 0.0, box=True)  # 4 views after the space was seen free
+    for _ in range(10):
+        _view(late, np.pi, box=True)
+    assert not late.expired(_box_face()).any() and late.n_appeared == 0
+
+
+def test_transient_config_and_input_are_checked():
+    for field, bad in (("keep_views", -1), ("window", 0), ("cell", 0.0), ("max_range", 0.0)):
+        with pytest.raises(ConfigError, match=field):
+            ObstacleConfig.from_dict({"transient": {field: bad}})
+    tc = _cells()
+    with pytest.raises(ValueError, match="does not match the intrinsics"):
+        tc.observe(np.zeros((0, 3)), _T_wc(0.0), np.zeros(2), np.zeros((10, 10)), INTR)
