@@ -50,6 +50,31 @@ def _check_points(p: np.ndarray, name: str, dim: int) -> np.ndarray:
     return a[:, :dim]
 
 
+def seen_through(
+    P: np.ndarray,
+    T_world_cam: np.ndarray,
+    depth: np.ndarray,
+    intr: Intrinsics,
+    margin: float,
+    margin_per_m2: float,
+) -> np.ndarray:
+    """(N,) bool: the projective free-space test of world points ``P`` (N, 3): each projects
+    into ``depth`` (H, W, metres, 0 or NaN: no return; intrinsics ``intr``) at least 0.1 m in
+    front of the camera, and the measured depth lies beyond it by ``margin`` +
+    ``margin_per_m2`` x depth^2."""
+    pc = transform_points(inv_T(T_world_cam), P)
+    z = pc[:, 2]
+    front = z > 0.1
+    zz = np.where(front, z, 1.0)
+    u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(np.int64)
+    v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(np.int64)
+    ok = front & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+    meas = np.zeros(len(z))
+    meas[ok] = depth[v[ok], u[ok]]
+    with np.errstate(invalid="ignore"):
+        return ok & np.isfinite(meas) & (meas > z + margin + margin_per_m2 * z**2)
+
+
 def below_top_contour(depth: np.ndarray, jump: float, half_width: int = 3) -> np.ndarray:
     """(H, W) bool: pixels on a surface whose top is in view. Each image column is cut into
     segments where the depth changes by more than ``jump`` metres between adjacent rows; a
@@ -257,16 +282,7 @@ class OcclusionShadow:
         bit = (open_bits[idx, None] >> np.arange(nh, dtype=np.uint8)) & 1
         ci, hk = np.nonzero(bit)
         P = np.column_stack([ctr[idx[ci]], self.heights[hk]])
-        pc = transform_points(inv_T(T), P)
-        z = pc[:, 2]
-        front = z > 0.1
-        zz = np.where(front, z, 1.0)
-        u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(np.int64)
-        v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(np.int64)
-        ok = front & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
-        meas = np.zeros(len(z))
-        meas[ok] = depth[v[ok], u[ok]]
-        through = ok & np.isfinite(meas) & (meas > z + self.margin + self.margin_per_m2 * z**2)
+        through = seen_through(P, T, depth, intr, self.margin, self.margin_per_m2)
         if through.any():
             add = np.zeros(len(self.shadow), np.uint8)
             np.bitwise_or.at(add, idx[ci[through]], (1 << hk[through]).astype(np.uint8))

@@ -37,7 +37,7 @@ import numpy as np
 
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.geometry.se3 import inv_T, transform_points
+from simn_sim.world.shadow import seen_through
 
 _NEVER = np.iinfo(np.int32).min // 2
 
@@ -136,17 +136,7 @@ class TransientCells:
             ctr = (cells - self.n // 2 + 0.5) * c.cell
             nh = len(self.heights)
             P = np.column_stack([np.repeat(ctr, nh, axis=0), np.tile(self.heights, len(ctr))])
-            pc = transform_points(inv_T(T), P)
-            z = pc[:, 2]
-            front = z > 0.1
-            zz = np.where(front, z, 1.0)
-            u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(np.int64)
-            v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(np.int64)
-            ok = front & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
-            meas = np.zeros(len(z))
-            meas[ok] = d[v[ok], u[ok]]
-            with np.errstate(invalid="ignore"):
-                through = ok & np.isfinite(meas) & (meas > z + c.margin + c.margin_per_m2 * z**2)
+            through = seen_through(P, T, d, intr, c.margin, c.margin_per_m2)
             col = through.reshape(-1, nh).all(axis=1)
             free = cells[col, 0] * self.n + cells[col, 1]
         b_ij, b_on = self._cells(np.asarray(base_xy, np.float64).reshape(1, 2))
