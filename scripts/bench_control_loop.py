@@ -6,9 +6,10 @@ topological map + collision model + planning + control). The env's own step (phy
 render) is timed separately. Reported per config: mean / median / p95 / p99 / max ms per control
 step, the share of steps over the control period (100 ms at 10 Hz), the breakdown (tracking,
 mapping, planning on the steps that plan) and the ratio of the mean to the control period and to
-the odometry-only ablation measured in the same run. ``--sensing`` (default ``ideal``, as the
-timings in docs/navigation.md were measured) picks the env's sensing condition; ``--odom-noise``
-overrides its odometry drift. ``--episode-ids`` picks episodes by id, ``--max-steps`` cuts
+the odometry-only ablation measured in the same run. ``--sensing`` (default ``ideal``; the
+current timings, docs/tracking.md "In the loop: act() at 320x240", were measured with
+``--sensing realistic``) picks the env's sensing condition; ``--odom-noise`` overrides its
+odometry drift. ``--episode-ids`` picks episodes by id, ``--max-steps`` cuts
 each episode short, ``--stages`` adds the per-stage self times of the SLAM front-end (as
 ``scripts/bench_learned_tracking.py``: perception, k-NN and network of tracking, LM, map
 insertion, k-NN and optimiser of training, the rest of ``SimnSlam.process``), ms per step, and

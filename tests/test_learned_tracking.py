@@ -84,7 +84,7 @@ def test_cache_is_the_network_at_its_vertices_and_exact_on_planes(office):
 
 
 def test_fast_path_recovers_a_5cm_3deg_perturbation_deterministically(office):
-    """Measured (docs/tracking.md): fast and exact both end within ~1 mm / 0.05 deg; the bounds
+    """Measured when the test was written: fast and exact both end within ~1 mm / 0.05 deg; the bounds
     leave margin for BLAS / CPU differences, not for a broken cache."""
     m, T_true, pts = office
     T0 = _perturbed(T_true)

@@ -165,7 +165,7 @@ def agent_preset(**changes: Any) -> SlamConfig:
         # revisit checks (ranked by the learned key-point features) verified by registration
         # against the frame's surface store: its loop arcs are more accurate than the learned
         # SDF's. office_nav_v2: 56/60 against 55/60, ATE 0.084 against 0.094 m, 393 revisits
-        # (98 % correct) against 126 (docs/navigation.md)
+        # (98 % correct) against 126 (37b24d2 against df5d74e; CHANGELOG 2026-12-05)
         revisit_sdf="points",
         # a deferred revisit check still running when the next frame opens is finished
         # first, not dropped (956 checks were dropped over office_nav_v2's 60 episodes).
@@ -201,7 +201,7 @@ def points_agent_preset(**changes: Any) -> SlamConfig:
         revisit_min_overlap=0.5,
         descriptor={**d["descriptor"], "max_points": 3000},
         # nearest-point SDF: the kernel's 8-neighbour queries doubled tracking time in the
-        # loop (median 17 -> 47 ms per frame at 320x240, docs/navigation.md)
+        # loop (median up to 47 ms per frame at 320x240, 55815d3; docs/navigation.md)
         point_sdf_kernel=0.0,
         open_train_iters=60,
         train_iters=15,
