@@ -17,20 +17,22 @@ CAM_H = 1.0
 BOX = (1.9, 2.3, -0.2, 0.2, 1.7)  # x0, x1, y0, y1, height (m): a person-sized box
 
 
-def _T_wc(yaw: float) -> np.ndarray:
-    """A level camera at (0, 0, CAM_H) looking along world heading ``yaw`` (OpenCV axes)."""
+def _T_wc(yaw: float, pitch: float = 0.0) -> np.ndarray:
+    """A camera at (0, 0, CAM_H) looking along world heading ``yaw``, pitched down by
+    ``pitch`` rad (OpenCV axes)."""
     c, s = np.cos(yaw), np.sin(yaw)
+    cp, sp = np.cos(pitch), np.sin(pitch)
     T = np.eye(4)
     # camera x (right), y (down), z (forward) in the world
-    T[:3, 0], T[:3, 1], T[:3, 2] = [s, -c, 0.0], [0.0, 0.0, -1.0], [c, s, 0.0]
+    T[:3, 0], T[:3, 1], T[:3, 2] = [s, -c, 0.0], [-sp * c, -sp * s, -cp], [cp * c, cp * s, -sp]
     T[2, 3] = CAM_H
     return T
 
 
-def _depth(T_wc: np.ndarray, box: bool) -> np.ndarray:
+def _depth(T_wc: np.ndarray, box: bool, intr: Intrinsics = INTR, box_xy=BOX) -> np.ndarray:
     """Exact depth (camera z, m) of the floor z = 0, walls at |x| = 4 and optionally BOX."""
-    v, u = np.mgrid[0 : INTR.height, 0 : INTR.width]
-    d_cam = np.stack([(u - INTR.cx) / INTR.fx, (v - INTR.cy) / INTR.fy, np.ones(u.shape)], -1)
+    v, u = np.mgrid[0 : intr.height, 0 : intr.width]
+    d_cam = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones(u.shape)], -1)
     d = d_cam @ T_wc[:3, :3].T  # world direction per unit of camera depth
     o = T_wc[:3, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -40,7 +42,7 @@ def _depth(T_wc: np.ndarray, box: bool) -> np.ndarray:
             tw = (wx - o[0]) / d[..., 0]
             t = np.where(tw > 0, np.minimum(t, tw), t)
         if box:
-            x0, x1, y0, y1, h = BOX
+            x0, x1, y0, y1, h = box_xy
             lo, hi = np.array([x0, y0, 0.0]), np.array([x1, y1, h])
             t0, t1 = (lo - o) / d, (hi - o) / d
             tn = np.minimum(t0, t1).max(axis=-1)
@@ -49,9 +51,9 @@ def _depth(T_wc: np.ndarray, box: bool) -> np.ndarray:
     return np.where(np.isfinite(t), t, 0.0)
 
 
-def _box_face() -> np.ndarray:
+def _box_face(box=BOX) -> np.ndarray:
     """Obstacle points on the box's face towards the camera, in the height band."""
-    x0, _, y0, y1, _ = BOX
+    x0, _, y0, y1, _ = box
     y, z = np.meshgrid(np.linspace(y0, y1, 9), np.linspace(0.1, 1.0, 10))
     return np.column_stack([np.full(y.size, x0), y.ravel(), z.ravel()])
 
@@ -68,18 +70,19 @@ def _view(tc: TransientCells, yaw: float, box: bool) -> None:
 
 
 def test_free_space_test_matches_the_geometry():
-    """Facing +x over an empty floor: a column 2 m ahead is seen free; a column beyond the
-    wall at x = 4, one behind the camera and one under the robot's view (0.3 m ahead, its
-    low samples below the image) are not, but the robot's footprint is."""
+    """Facing +x over an empty floor: every slab of a column 2 m ahead is seen free; no slab
+    beyond the wall at x = 4 or behind the camera is; 0.35 m ahead only the top slab's centre
+    (0.88 m) is within the image's 45 deg below the horizontal; the footprint is free."""
     tc = _cells()
     _view(tc, 0.0, box=False)
     ij = lambda x, y: tuple(np.floor(np.array([x, y]) / 0.1).astype(int) + tc.n // 2)  # noqa: E731
-    assert tc.free_at[ij(2.05, 0.05)] == 0
-    assert tc.free_at[ij(3.35, -0.45)] == 0  # within max_range, in view
-    assert tc.free_at[ij(4.25, 0.05)] < 0  # behind the wall
-    assert tc.free_at[ij(-2.05, 0.05)] < 0  # behind the camera
-    assert tc.free_at[ij(0.35, 0.05)] < 0  # the 0.1 m sample is below the image
-    assert tc.free_at[ij(0.05, 0.05)] == 0  # under the robot
+    np.testing.assert_allclose(tc.heights, [0.1775, 0.4125, 0.6475, 0.8825])
+    assert (tc.free_at[ij(2.05, 0.05)] == 0).all()
+    assert (tc.free_at[ij(3.35, -0.45)] == 0).all()  # within max_range, in view
+    assert (tc.free_at[ij(4.25, 0.05)] < 0).all()  # behind the wall
+    assert (tc.free_at[ij(-2.05, 0.05)] < 0).all()  # behind the camera
+    assert list(tc.free_at[ij(0.35, 0.05)] == 0) == [False, False, False, True]
+    assert (tc.free_at[ij(0.05, 0.05)] == 0).all()  # under the robot
 
 
 def test_an_obstacle_that_appears_in_free_space_expires_unseen():
@@ -123,6 +126,34 @@ def test_an_obstacle_without_free_space_evidence_stays():
     for _ in range(10):
         _view(late, np.pi, box=True)
     assert not late.expired(_box_face()).any() and late.n_appeared == 0
+
+
+def test_a_person_appears_in_view_of_the_d435i_mount():
+    """The agent's camera (1.0 m up, pitched 24 deg down, 42.5 deg vertical field of view)
+    sees nothing above 2.75 deg below the horizontal, so beyond 2.45 m the top slab's centre
+    (0.88 m) is out of view. A person-sized box 3.0 m ahead, where view 0 saw the floor,
+    appears in the three lower slabs, which view 0 saw free, and they expire unseen; the top
+    slab, never seen free, does not appear and its points stay. (A test of the whole column,
+    as before 2026-12-06, marked nothing free there: the person never appeared.)"""
+    intr = Intrinsics.from_fovy(80, 60, 42.5)
+    pitch = np.deg2rad(24.0)
+    far = (3.0, 3.4, -0.2, 0.2, 1.7)
+    keep = 3
+    tc = _cells(keep)
+    T0 = _T_wc(0.0, pitch)
+    tc.observe(np.zeros((0, 3)), T0, np.zeros(2), _depth(T0, False, intr), intr)
+    ij = lambda x, y: tuple(np.floor(np.array([x, y]) / 0.1).astype(int) + tc.n // 2)  # noqa: E731
+    assert (tc.free_at[ij(2.05, 0.05)] == 0).all()
+    assert list(tc.free_at[ij(3.05, 0.05)] == 0) == [True, True, True, False]
+    face = _box_face(far)
+    tc.observe(face, T0, np.zeros(2), _depth(T0, True, intr, far), intr)
+    low = face[:, 2] < 0.765  # the three lower slabs (band 0.06-1.0 in 4 slabs of 0.235 m)
+    assert tc.n_appeared > 0 and not tc.expired(face).any()
+    T1 = _T_wc(np.pi, pitch)
+    for _ in range(keep + 1):  # turned away
+        tc.observe(np.zeros((0, 3)), T1, np.zeros(2), _depth(T1, True, intr, far), intr)
+    gone = tc.expired(face)
+    assert gone[low].all() and not gone[~low].any()
 
 
 def test_transient_config_and_input_are_checked():
