@@ -156,6 +156,22 @@ def test_a_person_appears_in_view_of_the_d435i_mount():
     assert gone[low].all() and not gone[~low].any()
 
 
+def test_a_static_edge_seen_past_does_not_appear():
+    """A box there all along: the cell (1.9-2.0, 0.2-0.3) holds only its edge (y = 0.2), and
+    its centre (1.95, 0.25) is seen through beside the box. A view whose edge points dropped
+    out (depth noise) marks that cell free, and the next view's edge points land in it; the
+    neighbour (1.95, 0.15) inside the box is never seen free, so nothing appears."""
+    tc = _cells()
+    T = _T_wc(0.0)
+    face = _box_face()
+    ij = tuple(np.floor(np.array([1.95, 0.25]) / 0.1).astype(int) + tc.n // 2)
+    tc.observe(face[face[:, 1] < 0.19], T, np.zeros(2), _depth(T, True), INTR)
+    assert (tc.free_at[ij] == 0).all()  # the edge cell's centre is seen through
+    for _ in range(5):
+        tc.observe(face, T, np.zeros(2), _depth(T, True), INTR)
+    assert tc.n_appeared == 0 and not tc.expired(face).any()
+
+
 def test_transient_config_and_input_are_checked():
     for field, bad in (("keep_views", -1), ("window", 0), ("cell", 0.0), ("max_range", 0.0)):
         with pytest.raises(ConfigError, match=field):
