@@ -91,8 +91,8 @@ def learned_tracking_preset(**changes: Any) -> SlamConfig:
     (reusing them while a point moved < 2 cm stopped LM early: maps at the true poses, noisy
     desk, error after LM from a 1.7 cm / 0.9 deg offset 7.6 mm / 0.30 deg with reuse, 4.8 mm
     / 0.09 deg without) and a point further than 3 cm along the surface from the map has no
-    SDF. It meets the ATE targets of desk and corridor (docs/slam.md), but registration costs
-    ~0.3-1.6 s per frame on this CPU, so it is not the default."""
+    SDF. The preset ``simn-sim slam`` starts from; its ATE against the targets, sequence by
+    sequence, is in docs/slam.md (missed on 7 of 12 at the last run, 2026-12-02)."""
     d = SlamConfig().to_dict()
     # the gradient-norm validity floor on the learned map: 0.5 made points flip between
     # valid and invalid where the blended planes of noisy normals meet, so LM's cost jumped
