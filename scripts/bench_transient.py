@@ -16,7 +16,6 @@ import argparse
 import json
 
 import gymnasium as gym
-import numpy as np
 
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
@@ -45,17 +44,16 @@ def main() -> None:
     cfg = {"obstacles": {"transient": {"keep_views": a.keep_views}}}
     agent = make_agent("simn", env.unwrapped, cfg)
     agent.reset(obs, info)
-    row = {}
     for k in range(1, a.steps + 1):
         obs, _, term, trunc, info = env.step(agent.act(obs, info))
         tc = agent.world.obstacles.transient
         if k % a.every == 0 or term or trunc or k == a.steps:
-            live = tc._live
+            appeared, expired = tc.counts()
             row = {
                 "step": k,
                 "appear_events": tc.n_appeared,
-                "appeared_now": len(live),
-                "expired_now": int(np.sum(tc.view - tc.occ_at.ravel()[live] > a.keep_views)),
+                "appeared_now": appeared,
+                "expired_now": expired,
             }
             print(json.dumps(row), flush=True)
         if term or trunc:

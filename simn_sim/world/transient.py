@@ -19,9 +19,10 @@ each cell was *seen free* and the last view at which an obstacle point fell in i
   slab of the cells under the robot's footprint (it stands there);
 - a slab that receives obstacle points at most ``window`` views after it and the same slab
   of its 8 neighbour cells were seen free has *appeared* (the neighbours: the cells at a
-  static object's edge, partly covered, are seen through at their centre; with the cell alone,
-  nav2-ref-004's look-around in a static office made 205 slabs appear in 75 steps); it is *expired* once ``keep_views`` views have passed without an obstacle point
-  in it, and the points in expired slabs are left out of the planning models
+  static object's edge, partly covered, are seen through at their centre; with the cell
+  alone, nav2-ref-004's look-around in a static office made 205 appear events in 75 steps);
+  it is *expired* once ``keep_views`` views have passed without an obstacle point in it, and
+  the points in expired slabs are left out of the planning models
   (:meth:`expired`). A later view that puts points in it again brings it back; a view that
   sees it free ends it (carving then removes the stored points too).
 
@@ -56,9 +57,9 @@ class TransientConfig(Config):
     (0: off, nothing is transient). window: an obstacle point in a cell at most this many views
     after the cell was seen free makes it appear. cell: grid edge (m). max_range: cells tested
     for free space within this horizontal range of the camera (m). n_heights: height slabs of
-    the collision model's band, each tested at its centre. margin, margin_per_m2: the free-space test's
-    margin (m, and m per m^2 of depth). extent: the grid covers this far (m) each side of the
-    start; cells beyond are never transient."""
+    the collision model's band, each tested at its centre. margin, margin_per_m2: the
+    free-space test's margin (m, and m per m^2 of depth). extent: the grid covers this far
+    (m) each side of the start; cells beyond are never transient."""
 
     keep_views: int = 0
     window: int = 100
@@ -117,8 +118,7 @@ class TransientCells:
         """Flat (cell, slab) indices of ``points`` (N, 3) and the (N,) mask of those on the
         grid (a point above or below the band counts in the nearest slab)."""
         P = np.asarray(points, np.float64).reshape(-1, 3)
-        ij = np.floor(P[:, :2] / self.cfg.cell).astype(np.int64) + self.n // 2
-        on = np.all((ij >= 0) & (ij < self.n), axis=1)
+        ij, on = self._cells(P[:, :2])
         k = np.clip(np.floor((P[:, 2] - self.z_lo) / self.slab_h), 0, self.cfg.n_heights - 1)
         flat = (ij[:, 0] * self.n + ij[:, 1]) * self.cfg.n_heights + k.astype(np.int64)
         return flat, on
@@ -197,11 +197,18 @@ class TransientCells:
         if self.cfg.keep_views <= 0 or not len(points):
             return out
         flat, on = self._index(points)
-        k = flat[on]
-        out[on] = self.appeared.ravel()[k] & (
-            self.view - self.occ_at.ravel()[k] > self.cfg.keep_views
-        )
+        out[on] = self._expired_flat(flat[on])
         return out
+
+    def _expired_flat(self, flat: np.ndarray) -> np.ndarray:
+        """(K,) bool: the slabs of flat indices ``flat`` that are expired."""
+        return self.appeared.ravel()[flat] & (
+            self.view - self.occ_at.ravel()[flat] > self.cfg.keep_views
+        )
+
+    def counts(self) -> tuple[int, int]:
+        """(slabs appeared now, of them expired now)."""
+        return len(self._live), int(self._expired_flat(self._live).sum())
 
     def expiring_now(self) -> bool:
         """Whether a slab expired at the last view (the models must be rebuilt to drop it)."""
