@@ -3,7 +3,8 @@
 Drives the default ``simn`` agent with ``obstacles.transient.keep_views`` set, realistic
 sensing, and prints every ``--every`` steps the appear events so far (slabs that received
 obstacle points after they and their neighbours were seen free), the slabs appeared now and
-those of them expired (left out of the planning models). In a static office (office_nav_v2)
+those of them expired (left out of the planning models); ``grown``: the appear events by blob
+growth (``transient.grow_share``). In a static office (office_nav_v2)
 every appear event is a false one: nothing moves there.
 
     OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python scripts/bench_transient.py \\
@@ -29,6 +30,12 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=175)
     ap.add_argument("--keep-views", type=int, default=30)
     ap.add_argument("--every", type=int, default=25)
+    ap.add_argument(
+        "--grow-share",
+        type=float,
+        default=None,
+        help="transient.grow_share (default: the config's)",
+    )
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     a = ap.parse_args()
@@ -41,7 +48,10 @@ def main() -> None:
     ep = eps[a.episode]
     env = gym.make(es.env_id, config={"width": a.width, "height": a.height})
     obs, info = env.reset(seed=ep.seed, options={"episode": ep})
-    cfg = {"obstacles": {"transient": {"keep_views": a.keep_views}}}
+    tr = {"keep_views": a.keep_views}
+    if a.grow_share is not None:
+        tr["grow_share"] = a.grow_share
+    cfg = {"obstacles": {"transient": tr}}
     agent = make_agent("simn", env.unwrapped, cfg)
     agent.reset(obs, info)
     for k in range(1, a.steps + 1):
@@ -52,6 +62,7 @@ def main() -> None:
             row = {
                 "step": k,
                 "appear_events": tc.n_appeared,
+                "grown": tc.n_grown,
                 "appeared_now": appeared,
                 "expired_now": expired,
             }

@@ -58,8 +58,9 @@ def _box_face(box=BOX) -> np.ndarray:
     return np.column_stack([np.full(y.size, x0), y.ravel(), z.ravel()])
 
 
-def _cells(keep: int = 5) -> TransientCells:
-    return TransientCells(TransientConfig(keep_views=keep), (0.06, 1.0), 0.25)
+def _cells(keep: int = 5, grow_share: float = 0.4) -> TransientCells:
+    cfg = TransientConfig(keep_views=keep, grow_share=grow_share)
+    return TransientCells(cfg, (0.06, 1.0), 0.25)
 
 
 def _view(tc: TransientCells, yaw: float, box: bool) -> None:
@@ -133,13 +134,26 @@ def test_a_person_appears_in_view_of_the_d435i_mount():
     sees nothing above 2.75 deg below the horizontal, so beyond 2.45 m the top slab's centre
     (0.88 m) is out of view. A person-sized box 3.0 m ahead, where view 0 saw the floor,
     appears in the three lower slabs, which view 0 saw free, and they expire unseen; the top
-    slab, never seen free, does not appear and its points stay. (A test of the whole column,
-    as before 2026-12-06, marked nothing free there: the person never appeared.)"""
+    slab, never seen free, does not appear by itself and its points stay without blob growth
+    (``grow_share`` 0); with it, the top slab joins its appeared blob and expires too. (A test
+    of the whole column, as before 2026-12-06, marked nothing free there: the person never
+    appeared.)"""
     intr = Intrinsics.from_fovy(80, 60, 42.5)
     pitch = np.deg2rad(24.0)
     far = (3.0, 3.4, -0.2, 0.2, 1.7)
     keep = 3
-    tc = _cells(keep)
+    for grow in (0.0, 0.4):
+        tc = _cells(keep, grow)
+        gone = _person_at_3m(tc, intr, pitch, far, keep)
+        low = _box_face(far)[:, 2] < 0.765  # the lower slabs (band 0.06-1.0, 0.235 m each)
+        assert gone[low].all()
+        assert gone[~low].all() if grow else not gone[~low].any()
+        assert (tc.n_grown > 0) == (grow > 0)
+
+
+def _person_at_3m(tc, intr, pitch, far, keep) -> np.ndarray:
+    """Views of :func:`test_a_person_appears_in_view_of_the_d435i_mount`; returns which face
+    points are expired at the end."""
     T0 = _T_wc(0.0, pitch)
     tc.observe(np.zeros((0, 3)), T0, np.zeros(2), _depth(T0, False, intr), intr)
     ij = lambda x, y: tuple(np.floor(np.array([x, y]) / 0.1).astype(int) + tc.n // 2)  # noqa: E731
@@ -147,13 +161,11 @@ def test_a_person_appears_in_view_of_the_d435i_mount():
     assert list(tc.free_at[ij(3.05, 0.05)] == 0) == [True, True, True, False]
     face = _box_face(far)
     tc.observe(face, T0, np.zeros(2), _depth(T0, True, intr, far), intr)
-    low = face[:, 2] < 0.765  # the three lower slabs (band 0.06-1.0 in 4 slabs of 0.235 m)
     assert tc.n_appeared > 0 and not tc.expired(face).any()
     T1 = _T_wc(np.pi, pitch)
     for _ in range(keep + 1):  # turned away
         tc.observe(np.zeros((0, 3)), T1, np.zeros(2), _depth(T1, True, intr, far), intr)
-    gone = tc.expired(face)
-    assert gone[low].all() and not gone[~low].any()
+    return tc.expired(face)
 
 
 def test_a_static_edge_seen_past_does_not_appear():
@@ -172,8 +184,70 @@ def test_a_static_edge_seen_past_does_not_appear():
     assert tc.n_appeared == 0 and not tc.expired(face).any()
 
 
+def _sides(box, n: int = 17) -> np.ndarray:
+    """Obstacle points on the box's two long sides (y = y0, y1), in the height band: what a
+    depth camera leaves of a person walking along x, seen over several views."""
+    x0, x1, y0, y1, _ = box
+    x, z = np.meshgrid(np.linspace(x0, x1, n), np.linspace(0.1, 1.0, 10))
+    return np.concatenate(
+        [np.column_stack([x.ravel(), np.full(x.size, y), z.ravel()]) for y in (y0, y1)]
+    )
+
+
+def test_a_blob_beyond_the_free_space_test_expires_whole_by_growth():
+    """A person-sized blob 3.0-3.8 m ahead: view 0 saw the floor free only to ``max_range``
+    3.5 m, so the slabs nearer than about 3.4 m appear and those beyond never can (the
+    corridor ghost of dyn-L2-003). Without growth the far part stays in the models after the
+    robot turns away; with growth the whole blob expires."""
+    blob = (3.0, 3.8, -0.2, 0.2, 1.7)
+    pts = np.concatenate([_box_face(blob), _sides(blob)])
+    keep = 3
+    for grow in (0.0, 0.4):
+        tc = _cells(keep, grow)
+        T0, T1 = _T_wc(0.0), _T_wc(np.pi)
+        tc.observe(np.zeros((0, 3)), T0, np.zeros(2), _depth(T0, False), INTR)
+        tc.observe(pts, T0, np.zeros(2), _depth(T0, True, box_xy=blob), INTR)
+        for _ in range(keep + 1):
+            tc.observe(np.zeros((0, 3)), T1, np.zeros(2), _depth(T1, True, box_xy=blob), INTR)
+        gone = tc.expired(pts)
+        far = pts[:, 0] >= 3.6
+        assert gone[~far].any() and far.any()
+        if grow:
+            assert gone.all() and tc.n_grown > 0
+        else:
+            assert not gone[far].any() and tc.n_grown == 0
+
+
+def test_growth_does_not_take_a_static_box_beside_an_appearing_object():
+    """A static box (there from view 0: never seen free) with a small object appearing right
+    beside it: the two form one blob of which the object's appeared slabs are a small share.
+    With ``grow_share`` 0.4 the box stays in the models after the robot turns away; with a
+    share as low as 0.1 the box would be taken too."""
+    box = (2.0, 2.4, -1.0, 0.0, 1.7)
+    obj = (2.0, 2.2, 0.0, 0.3, 1.7)
+    box_pts = _box_face(box)
+    obj_pts = _box_face(obj)[_box_face(obj)[:, 1] > 0.05]
+    keep = 3
+    for grow, box_expires in ((0.4, False), (0.1, True)):
+        tc = _cells(keep, grow)
+        T0, T1 = _T_wc(0.0), _T_wc(np.pi)
+        tc.observe(box_pts, T0, np.zeros(2), _depth(T0, True, box_xy=box), INTR)
+        both = np.concatenate([box_pts, obj_pts])
+        tc.observe(both, T0, np.zeros(2), _depth(T0, True, box_xy=box), INTR)
+        assert tc.n_appeared > 0
+        for _ in range(keep + 1):
+            tc.observe(np.zeros((0, 3)), T1, np.zeros(2), _depth(T1, True, box_xy=box), INTR)
+        assert tc.expired(box_pts).any() == box_expires, grow
+
+
 def test_transient_config_and_input_are_checked():
-    for field, bad in (("keep_views", -1), ("window", 0), ("cell", 0.0), ("max_range", 0.0)):
+    for field, bad in (
+        ("keep_views", -1),
+        ("window", 0),
+        ("cell", 0.0),
+        ("max_range", 0.0),
+        ("grow_share", 1.5),
+    ):
         with pytest.raises(ConfigError, match=field):
             ObstacleConfig.from_dict({"transient": {field: bad}})
     tc = _cells()
