@@ -146,3 +146,42 @@ def test_path_cost_with_exact_segments_applies_the_followers_test():
             assert math.isfinite(sampled_cm.path_cost(np.stack([a, b])))
         free += int(exact)
     assert grazing > 0 and free > 0  # both kinds of step were judged
+
+
+def test_a_person_in_the_doorway_is_priced_not_a_wall():
+    """A wall x = 0 with two doors, (1.0, 2.2) and (4.0, 5.2), and a person (a 0.2 m disc) in
+    the near one. Without transient pricing the near door is closed and the route takes the far
+    door. With ``transient_weight`` w and a static model that holds the wall alone, the near
+    door is passable at w per metre inside the person's blocked disc: the cost lies between the
+    free door's geodesic and that plus (w - 1) x the disc's diameter (plus the grid's slack),
+    the route crosses the wall in the near door, and a line through the wall stays blocked."""
+    wall = wall_x0([(1.0, 2.2), (4.0, 5.2)])
+    a = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    rr = np.linspace(0.0, 0.2, 5)
+    person = np.c_[np.outer(rr, np.cos(a)).ravel(), 1.6 + np.outer(rr, np.sin(a)).ravel()]
+    person = np.c_[person, np.full(len(person), 0.5)]
+    planning, safety = checkers(np.vstack([wall, person]))
+    _, static = checkers(wall)
+    goal, start = np.array([2.0, 0.0]), np.array([-2.0, 0.0])
+    known = known_everywhere()
+    cfg = CostMapConfig(margin_weight=1.0)
+    closed = CostMap(cfg, safety, planning, goal, start, known)
+    free_door = CostMap(cfg, static, planning, goal, start, known).cost_to_go(start)
+    far_door = 2 * math.hypot(2.0, 4.0 + R + 0.03)  # the far door's exact detour
+    assert closed.cost_to_go(start) >= far_door - 0.05
+    w = 5.0
+    soft = CostMap(cfg.replace(transient_weight=w), safety, planning, goal, start, known, static)
+    c = soft.cost_to_go(start)
+    disc = 2 * (0.2 + R + 0.03)
+    assert free_door < c <= free_door + (w - 1) * disc + 0.3
+    assert c < closed.cost_to_go(start)
+    p = soft.path(start)
+    k = np.flatnonzero(np.diff(np.sign(p[:, 0])) != 0)[0]
+    assert 1.0 + R <= p[k, 1] <= 2.2 - R  # through the near door, past the person
+    assert math.isfinite(soft.path_cost(p)) and soft.path_cost(p) >= c - 1e-6
+    assert math.isinf(soft.path_cost(np.array([start, goal])))  # the wall is still a wall
+    # the static model is ignored while transient_weight is 0 (off)
+    off = CostMap(cfg, safety, planning, goal, start, known, static)
+    assert off.cost_to_go(start) == pytest.approx(closed.cost_to_go(start))
+    with pytest.raises(ConfigError, match="transient_weight"):
+        CostMapConfig(transient_weight=0.5)

@@ -229,8 +229,9 @@ class SimnAgent:
         known = self.world.frames.floor_points_world()[:, :2]
         if self._driven:
             known = np.vstack([known, np.asarray(self._driven)])
+        ob = self.obstacles
         cm = CostMap(
-            self.cfg.costmap, self.obstacles.safety, self.obstacles.planning, self.goal, xy, known
+            self.cfg.costmap, ob.safety, ob.planning, self.goal, xy, known, ob.static_safety
         )
         self._ctg = cm.cost_to_go(xy)
         self._progress.update(self._ctg, self.steps)

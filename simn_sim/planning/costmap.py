@@ -9,7 +9,10 @@ metre costs
 - times ``margin_weight`` inside the planning margin (free only under the tight safety margin:
   a narrow doorway whose jambs depth noise has thickened stays passable, at a price),
 
-and cells blocked under the safety margin are impassable. The field gives:
+and cells blocked under the safety margin are impassable, but for those blocked only by
+transient obstacles (given a ``static`` safety model without them, and ``transient_weight`` > 0):
+a person is there for seconds, so a route through them costs ``transient_weight`` per metre (the
+wait) instead of closing the way. The path follower still stops at them. The field gives:
 
 - ``cost_to_go(xy)``: the path length to the goal on the agent's own map, weighted as above
   (the lost-progress measure);
@@ -44,7 +47,7 @@ class CostMapConfig(Config):
     multiplier inside the planning margin (free only under the safety margin). known_radius: a
     cell is known within this distance (m) of a seen floor point or the driven path.
     goal_snap: when the goal cell is blocked, cells within this distance (m) of it serve as
-    goal."""
+    goal. transient_weight: see the field's comment."""
 
     resolution: float = 0.1
     pad: float = 3.0
@@ -55,6 +58,10 @@ class CostMapConfig(Config):
     # path_cost also applies the path follower's exact segment test (segments_free); off: the
     # 5 cm samples only (office_nav_v2: see docs/navigation.md, "A plan the follower refuses")
     exact_segments: bool = False
+    # cost per metre through cells blocked only by transient obstacles (a person: wait for
+    # them); 0: they block like any obstacle. Acts only with transient cells on (the static
+    # safety model of simn_sim.world.obstacles)
+    transient_weight: float = 0.0
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -64,6 +71,12 @@ class CostMapConfig(Config):
         require(self.margin_weight >= 1, n, "margin_weight", "must be >= 1")
         require(self.known_radius >= 0, n, "known_radius", "must be >= 0")
         require(self.goal_snap >= 0, n, "goal_snap", "must be >= 0")
+        require(
+            self.transient_weight == 0 or self.transient_weight >= 1,
+            n,
+            "transient_weight",
+            "must be 0 (off) or >= 1",
+        )
 
 
 class CostMap:
@@ -79,9 +92,12 @@ class CostMap:
         goal: np.ndarray,
         robot_xy: np.ndarray,
         known_xy: np.ndarray | None = None,
+        static: CollisionChecker | None = None,
     ) -> None:
         self.cfg = cfg
         self.safety = safety
+        # the safety model without transient obstacles; None: nothing is soft
+        self.static = static if cfg.transient_weight > 0 else None
         self.goal = np.asarray(goal, float).reshape(2)
         robot_xy = np.asarray(robot_xy, float).reshape(2)
         r = cfg.resolution
@@ -115,6 +131,11 @@ class CostMap:
         self.known = known
         w = np.where(known, 1.0, cfg.unknown_weight) * np.where(wide, 1.0, cfg.margin_weight)
         self.weight = np.where(free, w, np.inf)
+        if self.static is not None:
+            # blocked only by transient obstacles: passable at the wait's price
+            soft = ~free & self.static.is_free(self.centres).reshape(self.nx, self.ny)
+            self.weight[soft] = cfg.transient_weight
+            self.free = free | soft
         self.dist = self._solve()
 
     # ---- the field ---------------------------------------------------------------------------
@@ -200,7 +221,10 @@ class CostMap:
         q = a + t[:, None] * d
         # exact_segments: the grid traversal (the path follower's test); a diagonal step between
         # two free cells can pass a blocked cell between the samples
-        if not self.safety.is_free(q).all() or (
+        blocked = ~self.safety.is_free(q)
+        if self.static is not None and blocked.any():
+            blocked &= ~self.static.is_free(q)  # transient obstacles are priced, not walls
+        if blocked.any() or (
             self.cfg.exact_segments and not self.safety.segments_free(p[:-1], p[1:]).all()
         ):
             return math.inf

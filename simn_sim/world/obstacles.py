@@ -7,6 +7,10 @@ margin does not make the robot dither at the margin's edge) and ``shadows``, the
 may hide an obstacle (:mod:`simn_sim.world.shadow`): plans are pushed away from them where there
 is room, they never block a plan. Bump points (an obstacle the base ran into but the camera did
 not see) are kept across rebuilds. Unknown space is free.
+
+With transient cells on, a fourth, ``static_safety``, is the safety model without the points in
+appeared slabs (what moved into space seen free: people): the cost-to-go map may price a route
+through them instead of closing it (``costmap.transient_weight``).
 """
 
 from __future__ import annotations
@@ -89,6 +93,9 @@ class ObstacleMap:
             if cfg.transient.keep_views > 0
             else None
         )
+        self.static_safety = (
+            CollisionChecker(self.safety.cfg) if self.transient is not None else None
+        )
         self.bump_points: list[np.ndarray] = []
         self._bump_views: list[int] = []  # the view count when each bump was added
         self._views = 0  # views integrated (the rebuild schedule)
@@ -100,11 +107,15 @@ class ObstacleMap:
 
     # ---- obstacles ---------------------------------------------------------------------------
     def add(self, points: np.ndarray) -> None:
-        """Add (N, 3) obstacle points (agent frame) to the planning and safety models."""
+        """Add (N, 3) obstacle points (agent frame) to the planning and safety models (and to
+        the static model those outside appeared transient slabs)."""
         if len(points):
             lab = np.full(len(points), OBSTACLE, np.int8)
             self.planning.update(points, lab)
             self.safety.update(points, lab)
+            if self.static_safety is not None:
+                keep = ~self.transient.appeared_at(points)
+                self.static_safety.update(points[keep], lab[keep])
 
     def model_points(self, frames: LocalFrames) -> np.ndarray:
         """(N, 3) the points the models are built from: the obstacle points of the local frames
@@ -125,6 +136,8 @@ class ObstacleMap:
             self._bump_views = [self._bump_views[k] for k in keep]
         self.planning.reset()
         self.safety.reset()
+        if self.static_safety is not None:
+            self.static_safety.reset()
         self.add(self.model_points(frames))
 
     def forget(self, min_frame: int) -> None:

@@ -21,10 +21,13 @@ each cell was *seen free* and the last view at which an obstacle point fell in i
   of its 8 neighbour cells were seen free has *appeared* (the neighbours: the cells at a
   static object's edge, partly covered, are seen through at their centre; with the cell
   alone, nav2-ref-004's look-around in a static office made 205 appear events in 75 steps);
-  it is *expired* once ``keep_views`` views have passed without an obstacle point in it, and
-  the points in expired slabs are left out of the planning models
-  (:meth:`expired`). A later view that puts points in it again brings it back; a view that
-  sees it free ends it (carving then removes the stored points too).
+  it is *expired* once ``keep_views`` views have passed without an obstacle point in it, or
+  once a view has seen it free after its last point, and the points in expired slabs are left
+  out of the planning models (:meth:`expired`). A later view that puts points in it again
+  brings it back. An appeared slab stays appeared: carving, which tests each stored point
+  against its own pixel, leaves some of a person's points in slabs whose centre is seen free
+  (dyn-L2-003: 27 of the 282 slabs a person walked through were seen free 1-10 views after
+  their last point and kept their points, narrowing the corridor for the rest of the episode).
 
 Slabs, not whole columns: the D435i mount (1.0 m up, pitched 24 deg down, 42.5 deg vertical
 field of view) sees nothing above 2.75 deg below the horizontal and no floor within 0.99 m, so
@@ -119,6 +122,7 @@ class TransientCells:
         self.n_appeared = 0  # slabs that appeared (events)
         self.n_grown = 0  # of them, slabs that appeared by growth (:meth:`_grow`)
         self._live = np.zeros(0, np.int64)  # flat indices of the appeared slabs
+        self._freed_now = False  # an appeared slab with points was seen free at the last view
 
     def _index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Flat (cell, slab) indices of ``points`` (N, 3) and the (N,) mask of those on the
@@ -178,6 +182,8 @@ class TransientCells:
             free = np.union1d(free, fs.ravel())
         free = np.setdiff1d(free, oi, assume_unique=True)  # this view's points win
         fa, oa, ap = self.free_at.ravel(), self.occ_at.ravel(), self.appeared.ravel()
+        # appeared slabs that held points since they were last seen free, now seen free
+        self._freed_now = bool(np.any(ap[free] & (oa[free] > fa[free])))
         if c.keep_views > 0 and len(oi):
             # the slab and its 8 neighbours in the same height slab seen free within the
             # window: a static object's edge cell, partly covered with its centre seen
@@ -193,14 +199,12 @@ class TransientCells:
             self._live = np.union1d(self._live, oi[new])
         oa[oi] = view
         fa[free] = view
-        ap[free] = False
         if c.keep_views > 0 and c.grow_share > 0 and len(oi) and cam_on[0]:
             self._grow(cam_ij[0])
-        self._live = self._live[ap[self._live]]
 
     def _grow(self, centre: np.ndarray) -> None:
         """Blob growth around the camera's cell ``centre``: the slabs occupied within the last
-        ``keep_views`` views and not seen free since form blobs (8-connected cells, any slab); where at least
+        ``keep_views`` views form blobs (8-connected cells, any slab); where at least
         ``grow_share`` of a blob's slabs appeared, the rest appear too.
 
         The free-space test cannot judge every slab of a moving person: the slabs where they
@@ -214,9 +218,7 @@ class TransientCells:
         k = int(np.ceil(c.max_range / c.cell)) + 10
         i0, j0 = max(int(centre[0]) - k, 0), max(int(centre[1]) - k, 0)
         i1, j1 = min(int(centre[0]) + k + 1, self.n), min(int(centre[1]) + k + 1, self.n)
-        oa = self.occ_at[i0:i1, j0:j1]
-        # occupied within keep_views views and not seen free since
-        recent = (self.view - oa <= c.keep_views) & (oa > self.free_at[i0:i1, j0:j1])
+        recent = (self.view - self.occ_at[i0:i1, j0:j1]) <= c.keep_views
         ap = self.appeared[i0:i1, j0:j1]  # a view: writes reach self.appeared
         lab, m = ndimage.label(recent.any(axis=2), structure=np.ones((3, 3), bool))
         if m == 0:
@@ -246,10 +248,22 @@ class TransientCells:
         out[on] = self._expired_flat(flat[on])
         return out
 
+    def appeared_at(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: the points (N, 3, planning frame) in appeared slabs, expired or not (what
+        the static model leaves out: :attr:`ObstacleMap.static_safety`)."""
+        out = np.zeros(len(points), bool)
+        if self.cfg.keep_views <= 0 or not len(points):
+            return out
+        flat, on = self._index(points)
+        out[on] = self.appeared.ravel()[flat[on]]
+        return out
+
     def _expired_flat(self, flat: np.ndarray) -> np.ndarray:
-        """(K,) bool: the slabs of flat indices ``flat`` that are expired."""
+        """(K,) bool: the slabs of flat indices ``flat`` that are expired (appeared, and without
+        points for ``keep_views`` views or seen free since their last point)."""
+        oa = self.occ_at.ravel()[flat]
         return self.appeared.ravel()[flat] & (
-            self.view - self.occ_at.ravel()[flat] > self.cfg.keep_views
+            (self.view - oa > self.cfg.keep_views) | (self.free_at.ravel()[flat] > oa)
         )
 
     def counts(self) -> tuple[int, int]:
@@ -261,4 +275,4 @@ class TransientCells:
         if self.cfg.keep_views <= 0:
             return False
         just = self.view - self.cfg.keep_views - 1
-        return bool(np.any(self.occ_at.ravel()[self._live] == just))
+        return self._freed_now or bool(np.any(self.occ_at.ravel()[self._live] == just))
