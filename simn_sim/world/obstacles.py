@@ -45,7 +45,7 @@ class ObstacleConfig(Config):
     bump_ttl: views after which a bump's points leave the models; 0: never. transient:
     obstacles that appear in space seen free (a person walking through a doorway) leave the
     models after ``transient.keep_views`` views unseen (:mod:`simn_sim.world.transient`);
-    off (0) by default."""
+    30 by default (0: off)."""
 
     collision: CollisionConfig = CollisionConfig(margin=0.1, z_min=0.06, z_max=1.0)
     rebuild_every: int = 20
@@ -56,7 +56,7 @@ class ObstacleConfig(Config):
     # a bump's arc of points is dropped from the models after this many views (a bump at a
     # door jamb otherwise closes the doorway for good); 0: kept for the episode
     bump_ttl: int = 300
-    transient: TransientConfig = TransientConfig()
+    transient: TransientConfig = TransientConfig(keep_views=30)
 
     def validate(self) -> None:
         n = type(self).__name__
