@@ -267,6 +267,8 @@ def test_the_static_model_leaves_out_appeared_slabs():
     from simn_sim.world.obstacles import ObstacleMap
 
     om = ObstacleMap(ObstacleConfig.from_dict({"transient": {"keep_views": 5}}))
+    assert om.static_safety is None  # kept only when asked for
+    om.keep_static()
     tc = om.transient
     T = _T_wc(0.0)
     tc.observe(np.zeros((0, 3)), T, np.zeros(2), _depth(T, False), INTR)
@@ -278,6 +280,7 @@ def test_the_static_model_leaves_out_appeared_slabs():
     assert not om.safety.is_free(at)[0] and om.static_safety.is_free(at)[0]
     other = (1.9, 2.3, 1.0, 1.4, 1.7)  # seen at the first view of a fresh map: never appears
     om2 = ObstacleMap(ObstacleConfig.from_dict({"transient": {"keep_views": 5}}))
+    om2.keep_static()
     pts = _box_face(other)
     om2.transient.observe(pts, T, np.zeros(2), _depth(T, True, box_xy=other), INTR)
     om2.add(pts)

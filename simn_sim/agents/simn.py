@@ -102,6 +102,8 @@ class SimnAgent:
             self.cfg.pose_source, self.cfg.slam, self.cfg.obstacles, cam.intrinsics, T_base_cam
         )
         self.obstacles = self.world.obstacles
+        if self.cfg.costmap.transient_weight > 0:
+            self.obstacles.keep_static()  # the model the cost map prices transient cells by
         self.follower = PathFollower(self.follower_cfg, self.obstacles.safety)
         self.bump = BumpDetector(
             self.control_dt,

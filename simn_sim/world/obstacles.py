@@ -8,9 +8,10 @@ may hide an obstacle (:mod:`simn_sim.world.shadow`): plans are pushed away from 
 is room, they never block a plan. Bump points (an obstacle the base ran into but the camera did
 not see) are kept across rebuilds. Unknown space is free.
 
-With transient cells on, a fourth, ``static_safety``, is the safety model without the points in
-appeared slabs (what moved into space seen free: people): the cost-to-go map may price a route
-through them instead of closing it (``costmap.transient_weight``).
+With transient cells on, a fourth, ``static_safety`` (kept only after :meth:`ObstacleMap.keep_static`),
+is the safety model without the points in appeared slabs (what moved into space seen free:
+people): the cost-to-go map may price a route through them instead of closing it
+(``costmap.transient_weight``).
 """
 
 from __future__ import annotations
@@ -93,9 +94,8 @@ class ObstacleMap:
             if cfg.transient.keep_views > 0
             else None
         )
-        self.static_safety = (
-            CollisionChecker(self.safety.cfg) if self.transient is not None else None
-        )
+        # kept only when asked for (:meth:`keep_static`)
+        self.static_safety: CollisionChecker | None = None
         self.bump_points: list[np.ndarray] = []
         self._bump_views: list[int] = []  # the view count when each bump was added
         self._views = 0  # views integrated (the rebuild schedule)
@@ -116,6 +116,15 @@ class ObstacleMap:
             if self.static_safety is not None:
                 keep = ~self.transient.appeared_at(points)
                 self.static_safety.update(points[keep], lab[keep])
+
+    def keep_static(self) -> None:
+        """Keep ``static_safety`` from now on (a no-op without transient cells). Its upkeep
+        costs about half of :meth:`add` again, so only the cost map's transient pricing asks
+        for it; asked after views were integrated, the next view rebuilds all models."""
+        if self.transient is None or self.static_safety is not None:
+            return
+        self.static_safety = CollisionChecker(self.safety.cfg)
+        self._forgot |= self._views > 0
 
     def model_points(self, frames: LocalFrames) -> np.ndarray:
         """(N, 3) the points the models are built from: the obstacle points of the local frames
