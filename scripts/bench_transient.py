@@ -4,7 +4,8 @@ Drives the default ``simn`` agent with ``obstacles.transient.keep_views`` set, r
 sensing, and prints every ``--every`` steps the appear events so far (slabs that received
 obstacle points after they and their neighbours were seen free), the slabs appeared now and
 those of them expired (left out of the planning models); ``grown``: the appear events by blob
-growth (``transient.grow_share``). In a static office (office_nav_v2)
+growth (``transient.grow_share``), and the mean time of ``TransientCells.observe`` per view.
+In a static office (office_nav_v2)
 every appear event is a false one: nothing moves there.
 
     OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python scripts/bench_transient.py \\
@@ -15,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 
 import gymnasium as gym
+import numpy as np
 
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
@@ -36,6 +39,12 @@ def main() -> None:
         default=None,
         help="transient.grow_share (default: the config's)",
     )
+    ap.add_argument(
+        "--point-share",
+        type=float,
+        default=None,
+        help="transient.point_share (default: the config's; 0: the slab rule alone)",
+    )
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     a = ap.parse_args()
@@ -51,12 +60,22 @@ def main() -> None:
     tr = {"keep_views": a.keep_views}
     if a.grow_share is not None:
         tr["grow_share"] = a.grow_share
+    if a.point_share is not None:
+        tr["point_share"] = a.point_share
     cfg = {"obstacles": {"transient": tr}}
     agent = make_agent("simn", env.unwrapped, cfg)
     agent.reset(obs, info)
+    tc = agent.world.obstacles.transient
+    observe, spent = tc.observe, []
+
+    def timed(*args, **kw):
+        t0 = time.perf_counter()
+        observe(*args, **kw)
+        spent.append(time.perf_counter() - t0)
+
+    tc.observe = timed
     for k in range(1, a.steps + 1):
         obs, _, term, trunc, info = env.step(agent.act(obs, info))
-        tc = agent.world.obstacles.transient
         if k % a.every == 0 or term or trunc or k == a.steps:
             appeared, expired = tc.counts()
             row = {
@@ -65,6 +84,7 @@ def main() -> None:
                 "grown": tc.n_grown,
                 "appeared_now": appeared,
                 "expired_now": expired,
+                "observe_ms_mean": round(1e3 * float(np.mean(spent)), 2),
             }
             print(json.dumps(row), flush=True)
         if term or trunc:

@@ -104,6 +104,11 @@ class Config:
             raise ConfigError(
                 f"{cls.__name__}: unknown config key(s) {unknown}; valid keys are {sorted(names)}"
             )
+        for f in dataclasses.fields(cls):
+            # a mapping for a nested config overrides the field's default, not the nested
+            # class's: {"transient": {"grow_share": 0.3}} keeps ObstacleConfig's keep_views 30
+            if isinstance(data.get(f.name), dict) and isinstance(f.default, Config):
+                data[f.name] = _merged(f.default.to_dict(), data[f.name])
         return cls(**data)
 
     def replace(self: C, **changes: Any) -> C:
@@ -122,6 +127,14 @@ class Config:
         """Short stable hash of the resolved config."""
         blob = json.dumps(self.to_dict(), sort_keys=True).encode()
         return hashlib.sha1(blob).hexdigest()[:12]
+
+
+def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over``'s keys replacing its own, nested mappings merged key by key."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def require(cond: bool, cls_name: str, field: str, msg: str) -> None:

@@ -9,10 +9,12 @@ import pytest
 
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
+from simn_sim.agents.simn_config import SimnAgentConfig
 from simn_sim.config import ConfigError
 from simn_sim.geometry.se3 import inv_T, transform_points
 from simn_sim.planning import CollisionChecker
 from simn_sim.world import OdometryWorld, SlamWorld
+from simn_sim.world.transient import TransientConfig
 
 
 @pytest.fixture(scope="module")
@@ -146,6 +148,26 @@ def test_bad_agent_config_is_rejected(env):
         make_agent("simn", env.unwrapped, {"plnner": "uniform"})
     with pytest.raises(ConfigError, match="planner"):
         make_agent("simn", env.unwrapped, {"planner": "astar"})
+
+
+def test_a_nested_mapping_changes_only_its_keys():
+    """A partial mapping for a nested config overrides the agent's defaults for it, not the
+    nested class's: {"obstacles": {"transient": {"grow_share": 0.3}}} used to build
+    TransientConfig() with keep_views 0 and turned transient cells off."""
+    d = SimnAgentConfig()
+    c = SimnAgentConfig.from_dict(
+        {
+            "obstacles": {"transient": {"grow_share": 0.3}, "collision": {"margin": 0.2}},
+            "follower": {"lookahead": 0.7},
+        }
+    )
+    assert c.obstacles.transient == d.obstacles.transient.replace(grow_share=0.3)
+    assert d.obstacles.transient.keep_views == 30 != TransientConfig().keep_views
+    assert c.obstacles.collision == d.obstacles.collision.replace(margin=0.2)
+    assert c.follower == d.follower.replace(lookahead=0.7)
+    assert c.rrt == d.rrt and c.slam == d.slam
+    with pytest.raises(ConfigError, match="unknown config key"):
+        SimnAgentConfig.from_dict({"obstacles": {"transient": {"keep_view": 3}}})
 
 
 def test_old_agent_config_keys_fail_naming_their_new_place(env):

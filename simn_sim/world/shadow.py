@@ -50,6 +50,21 @@ def _check_points(p: np.ndarray, name: str, dim: int) -> np.ndarray:
     return a[:, :dim]
 
 
+def project_points(
+    P: np.ndarray, T_world_cam: np.ndarray, intr: Intrinsics
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Camera depth z (N,), pixel column u and row v (N,) of world points ``P`` (N, 3) seen
+    from ``T_world_cam``, and the (N,) mask of those that project into the image at least
+    0.1 m in front of the camera."""
+    pc = transform_points(inv_T(T_world_cam), P)
+    z = pc[:, 2]
+    front = z > 0.1
+    zz = np.where(front, z, 1.0)
+    u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(np.int64)
+    v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(np.int64)
+    return z, u, v, front & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+
+
 def seen_through(
     P: np.ndarray,
     T_world_cam: np.ndarray,
@@ -62,13 +77,7 @@ def seen_through(
     into ``depth`` (H, W, metres, 0 or NaN: no return; intrinsics ``intr``) at least 0.1 m in
     front of the camera, and the measured depth lies beyond it by ``margin`` +
     ``margin_per_m2`` x depth^2."""
-    pc = transform_points(inv_T(T_world_cam), P)
-    z = pc[:, 2]
-    front = z > 0.1
-    zz = np.where(front, z, 1.0)
-    u = np.round(intr.fx * pc[:, 0] / zz + intr.cx).astype(np.int64)
-    v = np.round(intr.fy * pc[:, 1] / zz + intr.cy).astype(np.int64)
-    ok = front & (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+    z, u, v, ok = project_points(P, T_world_cam, intr)
     meas = np.zeros(len(z))
     meas[ok] = depth[v[ok], u[ok]]
     with np.errstate(invalid="ignore"):
