@@ -114,6 +114,9 @@ def test_local_batch_error_record_outputs_and_resume(tmp_path: Path) -> None:
     assert conf["env"]["width"] == 160 and conf["agent"] == "oracle"
     assert conf["config_hash"] == res.config_hash and conf["package_version"]
     assert "git_commit" in conf
+    from simn_sim.agents.oracle import OracleConfig
+
+    assert conf["agent_config_resolved"] == OracleConfig().to_dict()
     md = (out / "summary.md").read_text()
     assert "| oracle | 3 | 1 |" in md and "bad-start" in md
     csv = (out / "summary.csv").read_text().splitlines()
@@ -201,6 +204,18 @@ def test_cli_bad_input_exit_2(
 ) -> None:
     assert batch_main([*argv, "--out", str(tmp_path / "o")]) == 2
     assert msg in capsys.readouterr().err
+
+
+def test_bad_agent_config_fails_before_any_episode(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    bad = tmp_path / "agent.yaml"
+    bad.write_text("obstacles:\n  transient:\n    point_share: 2.0\n")
+    out = tmp_path / "o"
+    argv = ["--agent", "simn", "--episodes", "1", "--agent-config", str(bad), "--out", str(out)]
+    assert batch_main(argv) == 2
+    assert "point_share" in capsys.readouterr().err
+    assert not (out / "episodes.jsonl").exists()
 
 
 def test_lenient_reader_rejects_corruption_in_the_middle(tmp_path: Path) -> None:

@@ -12,7 +12,9 @@ file, or ``N`` episodes sampled from seeds ``S .. S+N-1``) with one agent and wr
 * ``episode_set.json``: the episode specs that were run (an episode file of the same format, so
   a sampled batch can be re-run exactly with ``--episode-file``).
 * ``config.json`` (and a copy ``configs/<agent>-<config_hash>.json``): resolved env config,
-  agent config, CLI arguments, package version and git commit.
+  the agent config as given (``agent_config``, which the config hash covers) and resolved
+  with every default (``agent_config_resolved``), CLI arguments, package version and git
+  commit.
 * ``summary.md`` / ``summary.csv`` (means and 95 % CIs per agent over every record in the
   folder), ``success_spl.png`` and ``trajectories_<layout>.png``
   (:mod:`simn_sim.experiments.plots`), ``run_stats.json`` (rate, per-worker peak memory).
@@ -167,6 +169,9 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
     out.mkdir(parents=True, exist_ok=True)
     done = _prepare_resume(out, cfg.agent, chash, env_id, episodes)
     conf = provenance(cfg, env_id, env_cfg, chash, episodes)
+    conf["agent_config_resolved"] = _resolve_agent_config(
+        env_id, env_cfg, cfg.agent, cfg.agent_config
+    )
     write_json(out / "config.json", conf)
     write_json(out / "configs" / f"{safe_name(cfg.agent)}-{chash}.json", conf)
 
@@ -326,6 +331,25 @@ def _check_agent(name: str) -> None:
     names = agent_names()
     if name not in names:
         raise BatchError(f"unknown agent {name!r}; valid agents: {names}")
+
+
+def _resolve_agent_config(
+    env_id: str, env_cfg: dict[str, Any], agent: str, agent_cfg: dict[str, Any]
+) -> dict[str, Any]:
+    """Every config value of ``agent`` with ``agent_cfg`` applied (defaults included), for
+    config.json; a bad value fails here, before any episode runs."""
+    import gymnasium as gym
+
+    from simn_sim.agents import make_agent
+    from simn_sim.config import ConfigError
+
+    env = gym.make(env_id, config=env_cfg)
+    try:
+        return make_agent(agent, env.unwrapped, dict(agent_cfg)).config_dict()
+    except (ConfigError, ValueError, TypeError) as e:
+        raise BatchError(f"agent config for {agent!r}: {e}") from e
+    finally:
+        env.close()
 
 
 def _progress(total: int, cfg: BatchConfig, skipped: list[str]) -> Any:
