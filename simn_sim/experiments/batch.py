@@ -168,10 +168,7 @@ def run_batch(cfg: BatchConfig) -> BatchResult:
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     done = _prepare_resume(out, cfg.agent, chash, env_id, episodes)
-    conf = provenance(cfg, env_id, env_cfg, chash, episodes)
-    conf["agent_config_resolved"] = _resolve_agent_config(
-        env_id, env_cfg, cfg.agent, cfg.agent_config
-    )
+    conf = provenance(cfg, env_id, env_cfg, chash, episodes)  # a bad agent config fails here
     write_json(out / "config.json", conf)
     write_json(out / "configs" / f"{safe_name(cfg.agent)}-{chash}.json", conf)
 
@@ -331,25 +328,6 @@ def _check_agent(name: str) -> None:
     names = agent_names()
     if name not in names:
         raise BatchError(f"unknown agent {name!r}; valid agents: {names}")
-
-
-def _resolve_agent_config(
-    env_id: str, env_cfg: dict[str, Any], agent: str, agent_cfg: dict[str, Any]
-) -> dict[str, Any]:
-    """Every config value of ``agent`` with ``agent_cfg`` applied (defaults included), for
-    config.json; a bad value fails here, before any episode runs."""
-    import gymnasium as gym
-
-    from simn_sim.agents import make_agent
-    from simn_sim.config import ConfigError
-
-    env = gym.make(env_id, config=env_cfg)
-    try:
-        return make_agent(agent, env.unwrapped, dict(agent_cfg)).config_dict()
-    except (ConfigError, ValueError, TypeError) as e:
-        raise BatchError(f"agent config for {agent!r}: {e}") from e
-    finally:
-        env.close()
 
 
 def _progress(total: int, cfg: BatchConfig, skipped: list[str]) -> Any:

@@ -115,6 +115,25 @@ def merge_episode_set(out: Path, env_id: str, episodes: list[dict[str, Any]]) ->
     EpisodeSet(env_id, [EpisodeSpec.from_dict(e) for e in known.values()]).save(p)
 
 
+def resolved_agent_config(
+    env_id: str, env_cfg: dict[str, Any], agent: str, agent_cfg: dict[str, Any]
+) -> dict[str, Any]:
+    """Every config value of ``agent`` with ``agent_cfg`` applied (defaults included), for
+    config.json; a bad value fails here, before any episode runs."""
+    import gymnasium as gym
+
+    from simn_sim.agents import make_agent
+    from simn_sim.config import ConfigError
+
+    env = gym.make(env_id, config=env_cfg)
+    try:
+        return make_agent(agent, env.unwrapped, dict(agent_cfg)).config_dict()
+    except (ConfigError, ValueError, TypeError) as e:
+        raise BatchError(f"agent config for {agent!r}: {e}") from e
+    finally:
+        env.close()
+
+
 def provenance(
     cfg: BatchConfig,
     env_id: str,
@@ -129,6 +148,9 @@ def provenance(
         "env": env_cfg,
         "agent": cfg.agent,
         "agent_config": dict(cfg.agent_config),
+        "agent_config_resolved": resolved_agent_config(
+            env_id, env_cfg, cfg.agent, cfg.agent_config
+        ),
         "config_hash": chash,
         "episodes": {
             "source": str(cfg.episode_file) if cfg.episode_file else "sampled",

@@ -80,8 +80,14 @@ def seen_through(
     z, u, v, ok = project_points(P, T_world_cam, intr)
     meas = np.zeros(len(z))
     meas[ok] = depth[v[ok], u[ok]]
+    return ok & beyond(meas, z, margin, margin_per_m2)
+
+
+def beyond(meas: np.ndarray, z: np.ndarray, margin: float, margin_per_m2: float) -> np.ndarray:
+    """(N,) bool: measured depths ``meas`` lie beyond depths ``z`` by ``margin`` +
+    ``margin_per_m2`` x z^2 (the stereo noise grows with depth^2); NaN is not beyond."""
     with np.errstate(invalid="ignore"):
-        return ok & np.isfinite(meas) & (meas > z + margin + margin_per_m2 * z**2)
+        return np.isfinite(meas) & (meas > z + margin + margin_per_m2 * z**2)
 
 
 def below_top_contour(depth: np.ndarray, jump: float, half_width: int = 3) -> np.ndarray:

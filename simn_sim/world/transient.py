@@ -55,7 +55,7 @@ from scipy import ndimage
 
 from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.world.shadow import project_points, seen_through
+from simn_sim.world.shadow import beyond, project_points, seen_through
 
 _NEVER = np.iinfo(np.int32).min // 2
 
@@ -282,7 +282,7 @@ class TransientCells:
             meas = np.zeros(len(z))
             meas[fr] = self._past_depth[s][py[fr], px[fr]]
             framed[m] = fr
-            through[m] = fr & (meas > z + c.margin + c.margin_per_m2 * z**2)
+            through[m] = fr & beyond(meas, z, c.margin, c.margin_per_m2)
         pos = np.searchsorted(cand, f)  # cand is sorted (a subset of np.unique's output)
         n_framed = np.bincount(pos, weights=framed, minlength=len(cand))
         n_through = np.bincount(pos, weights=through, minlength=len(cand))
