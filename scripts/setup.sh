@@ -23,4 +23,5 @@ PY="${PYTHON:-python3}"
 # The CPU build of torch first: a plain 'torch' requirement would pull a multi-GB CUDA build.
 .venv/bin/python -c "import torch" 2>/dev/null || \
   .venv/bin/python -m pip install -q torch==2.13.0
-.venv/bin/python -m pip install -q -e ".[${EXTRAS}]"
+# the numeric packages at pinned versions (scripts/constraints.txt: results depend on them)
+.venv/bin/python -m pip install -q -c scripts/constraints.txt -e ".[${EXTRAS}]"

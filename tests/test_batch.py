@@ -114,6 +114,14 @@ def test_local_batch_error_record_outputs_and_resume(tmp_path: Path) -> None:
     assert conf["env"]["width"] == 160 and conf["agent"] == "oracle"
     assert conf["config_hash"] == res.config_hash and conf["package_version"]
     assert "git_commit" in conf
+    # the versions the numbers came from: those this process imports
+    import mujoco
+    import torch
+
+    deps = conf["dependencies"]
+    assert deps["numpy"] == np.__version__ and deps["torch"] == torch.__version__
+    assert deps["mujoco"] == mujoco.__version__ and set(deps) >= {"scipy", "gtsam"}
+    assert conf["cpu_model"]
     from simn_sim.agents.oracle import OracleConfig
 
     assert conf["agent_config_resolved"] == OracleConfig().to_dict()

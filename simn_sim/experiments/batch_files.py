@@ -10,6 +10,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import socket
 import subprocess
 import sys
@@ -165,6 +166,10 @@ def provenance(
         "rerun": cfg.rerun,
         "cli_args": cfg.argv,
         "package_version": _package_version(),
+        # the outcome of an episode depends on float rounding (a closed loop amplifies a last-bit
+        # difference), so on these versions and on the CPU, not only on code and seed
+        "dependencies": dependency_versions(),
+        "cpu_model": cpu_model(),
         **_git_info(),
         "python": sys.version.split()[0],
         "platform": platform.platform(),
@@ -172,6 +177,49 @@ def provenance(
         "cpu_count": os.cpu_count(),
         "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+# the packages whose arithmetic an episode's numbers pass through (scripts/constraints.txt pins
+# them for scripts/setup.sh)
+NUMERIC_DEPENDENCIES = (
+    "numpy",
+    "scipy",
+    "torch",
+    "mujoco",
+    "gtsam",
+    "opencv-python-headless",
+    "gymnasium",
+    "networkx",
+    "shapely",
+    "scikit-image",
+)
+
+
+def dependency_versions() -> dict[str, str | None]:
+    """Installed version of each of :data:`NUMERIC_DEPENDENCIES` (None: not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out: dict[str, str | None] = {}
+    for name in NUMERIC_DEPENDENCIES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def cpu_model() -> str | None:
+    """The CPU's model name and its vector extensions that change which kernels numpy, torch
+    and OpenBLAS run (Linux: ``/proc/cpuinfo``; else ``platform.processor()`` or None)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor() or None
+    name = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
+    flags = re.search(r"^flags\s*:\s*(.+)$", text, re.M)
+    have = set(flags.group(1).split()) if flags else set()
+    ext = [f for f in ("avx", "avx2", "fma", "avx512f", "avx512_vnni", "amx_tile") if f in have]
+    return f"{name.group(1).strip() if name else 'unknown'} [{' '.join(ext) or 'no avx'}]"
 
 
 def _git(*args: str) -> str:
