@@ -417,3 +417,46 @@ def test_odometry_window_keeps_a_correct_registration(desk):
         gt.append((fr.timestamp, fr.T_world_cam))
     assert np.isfinite(slam.tracker.window_sigmas)
     assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01
+
+
+def test_points_in_dynamic_space_stay_out_of_registration_and_its_maps():
+    """A box face 1.5 m ahead appears in front of a wall 3 m ahead; the caller says the space
+    within 2 m is dynamic (as the agent's transient cells do for a person): the face's points
+    reach the obstacle store but not the surface store that tracking and the revisit checks
+    register against, nor the registration points."""
+    from simn_sim.geometry.camera import Intrinsics
+
+    intr = Intrinsics(160, 120, 150.0, 150.0, 79.5, 59.5)
+    T_base_cam = np.eye(4)
+    T_base_cam[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical z = base x (forward)
+    T_base_cam[2, 3] = 0.5
+
+    def near(P: np.ndarray) -> np.ndarray:  # world points within 2 m of the camera (x-y)
+        return np.linalg.norm(P[:, :2], axis=1) < 2.0
+
+    runs = {}
+    for dynamic in (None, near):
+        slam = SimnSlam(SlamConfig(map_kind="points", stores={"carve": False}), intr, T_base_cam)
+        slam.process(0.0, *_synthetic_view(False), T_base_cam, dynamic)
+        out = slam.process(0.1, *_synthetic_view(True), T_base_cam, dynamic)
+        st = slam.frames.states[out.frame_id]
+        A = slam.frames.topo.anchor(out.frame_id)
+        surf = st.surface.surface.points @ A[:3, :3].T + A[:3, 3]
+        obst = slam.obstacle_points_world()
+        runs[dynamic is not None] = (
+            int(near(surf).sum()),
+            int(near(obst).sum()),
+            out.n_track_points,
+            slam.stats()["dynamic_points"],
+        )
+    surf_near, obst_near, n_track, n_dyn = runs[True]
+    surf_near0, obst_near0, n_track0, n_dyn0 = runs[False]
+    assert surf_near0 > 20 and n_dyn0 == 0  # without the mask the face is in the surface store
+    assert surf_near == 0  # with it, none of the face
+    assert obst_near == obst_near0 > 20  # the obstacle store keeps all of it
+    assert n_dyn > 20 and n_track < n_track0
+    # the mask must be one bool per point
+    slam = SimnSlam(SlamConfig(map_kind="points"), intr, T_base_cam)
+    slam.process(0.0, *_synthetic_view(False), T_base_cam)
+    with pytest.raises(ValueError, match="dynamic must give"):
+        slam.process(0.1, *_synthetic_view(True), T_base_cam, lambda P: np.ones(3, bool))

@@ -80,6 +80,26 @@ class Frame:
     def __len__(self) -> int:
         return len(self.points)
 
+    def select(self, keep: np.ndarray) -> Frame:
+        """The frame with only the points where ``keep`` ((N,) bool) is True; the depth image
+        and its validity stay whole (they are the image, not the points)."""
+        keep = np.asarray(keep)
+        if keep.dtype != bool or keep.shape != (len(self),):
+            raise ValueError(f"keep must be a ({len(self)},) bool mask, got {keep.dtype} {keep.shape}")
+
+        def sub(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[keep]
+
+        return dataclasses.replace(
+            self,
+            points=self.points[keep],
+            normals=sub(self.normals),
+            map_normals=sub(self.map_normals),
+            colors=self.colors[keep],
+            pixels=self.pixels[keep],
+            labels=sub(self.labels),
+        )
+
     def with_labels(self, labels: np.ndarray) -> Frame:
         labels = np.asarray(labels, np.int8)
         if labels.shape != (len(self),):

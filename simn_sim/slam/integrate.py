@@ -45,16 +45,21 @@ def integrate(
     T_anchor_cam: np.ndarray,
     cfg: SlamConfig,
     trainer: TrainWorker | None = None,
+    keep: np.ndarray | None = None,
 ) -> bool:
     """Add a labelled ``frame`` (camera pose ``T_anchor_cam`` in ``st``'s anchor) to local frame
     ``st``. Returns False when the learned map rejected the frame as empty (counted by the
     caller), True otherwise. With a ``trainer`` the training runs on its worker thread and the
-    bookkeeping after it (trained count, node refresh) when it is joined."""
-    pts = frame.points
+    bookkeeping after it (trained count, node refresh) when it is joined. ``keep``: (N,) bool,
+    the points that go into the maps registration reads (surface store, learned map); the
+    obstacle and floor stores take all of them (None: all everywhere)."""
     st.n_obs += 1
-    if len(pts) == 0:
+    if len(frame) == 0:
         return True
     frames.store(st, frame, T_anchor_cam)
+    if keep is not None:
+        frame = frame.select(keep)
+    pts = frame.points
     ok = np.isfinite(frame.normals).all(axis=1)
     if ok.any():
         P, N = pts[ok], frame.normals[ok]

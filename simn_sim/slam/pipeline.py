@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -139,6 +140,7 @@ class SimnSlam:
         self.n_frames = 0
         self.n_track_failures = 0
         self.n_map_skipped = 0  # frames the learned map rejected as empty
+        self.n_dynamic_points = 0  # points left out of registration and its maps (dynamic)
         self._records: list[tuple[float, int, np.ndarray, np.ndarray]] = []
         self.last: SlamFrame | None = None
         self._held_threads: int | None = None  # the caller's, while a chunk runs (process)
@@ -171,13 +173,19 @@ class SimnSlam:
         rgb: np.ndarray | None,
         depth: np.ndarray,
         T_world_cam_prior: np.ndarray | None = None,
+        dynamic: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> SlamFrame:
         """Track, map and update the topological map with one RGB-D frame.
 
         t: timestamp (s), increasing. rgb: (H, W, 3) uint8 or None. depth: (H, W) float metres
         (0 / NaN invalid). T_world_cam_prior: optional (4, 4) pose from another source (wheel
         odometry); only its change since the previous call is used (so its drift does not
-        enter), except on the first call, where it defines the world frame.
+        enter), except on the first call, where it defines the world frame. dynamic: optional
+        ``(N, 3) world points -> (N,) bool``, True where a point lies in space known to hold
+        something that moves (the agent's transient cells); those points of the frame, placed
+        at the predicted pose, are left out of registration (tracking and the revisit checks)
+        and of the maps registration reads (the surface store and the learned map), and still
+        reach the obstacle stores and carving.
         """
         # the caller's torch threads: set to ``torch_threads`` here and given back when no
         # training chunk runs on the worker thread; while one runs they stay held until the
@@ -189,7 +197,7 @@ class SimnSlam:
         if self.cfg.torch_threads and self.cfg.torch_threads != torch.get_num_threads():
             torch.set_num_threads(self.cfg.torch_threads)
         try:
-            return self._process(t, rgb, depth, T_world_cam_prior)
+            return self._process(t, rgb, depth, T_world_cam_prior, dynamic)
         finally:
             if self.trainer is not None and self.trainer.busy:
                 self._held_threads = n_threads
@@ -208,6 +216,7 @@ class SimnSlam:
         rgb: np.ndarray | None,
         depth: np.ndarray,
         T_world_cam_prior: np.ndarray | None,
+        dynamic: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> SlamFrame:
         t0 = time.perf_counter()
         t = float(t)
@@ -217,8 +226,18 @@ class SimnSlam:
         prior = None if T_world_cam_prior is None else check_pose(T_world_cam_prior, "prior")
         # perceive
         frame = self.perception(rgb, depth)
-        track_pts = tr.track_points(frame.points, frame.normals)
         first = self.n_frames == 0
+        keep = None  # the frame's points outside dynamic space (None: all of them)
+        if dynamic is not None and not first and len(frame):
+            T_guess = frames.topo.anchor(frames.current_id) @ orthonormalize(tr.predict(t, prior))
+            moving = np.asarray(dynamic(transform_points(T_guess, frame.points.astype(np.float64))))
+            if moving.shape != (len(frame),) or moving.dtype != bool:
+                raise ValueError(f"dynamic must give a ({len(frame)},) bool mask, got {moving.shape}")
+            if moving.any():
+                keep = ~moving
+                self.n_dynamic_points += int(moving.sum())
+        static = frame if keep is None else frame.select(keep)
+        track_pts = tr.track_points(static.points, static.normals)
         if self.cfg.train_latency == 0 or (not first and not tr.has_trained_target()):
             # the previous frame's training (train_async) before the map is read; with
             # train_latency 1 only when nothing trained could be tracked against without it
@@ -268,7 +287,7 @@ class SimnSlam:
         if self.cfg.semantics and self.T_base_cam is not None and len(frame):
             labels = classify(frame, T_world_cam, self.T_base_cam, self.cfg.classifier)
         frame = frame.with_labels(labels)
-        if not integrate(frames, st, frame, T_anchor_cam, self.cfg, self.trainer):
+        if not integrate(frames, st, frame, T_anchor_cam, self.cfg, self.trainer, keep):
             self.n_map_skipped += 1
         if new_frame and not first:
             # the revisit check of a new frame runs once its first observation is in its map:
@@ -400,6 +419,7 @@ class SimnSlam:
             "track_failures": self.n_track_failures,
             "map_frames_skipped": self.n_map_skipped,
             "carved_points": self.frames.n_carved,
+            "dynamic_points": self.n_dynamic_points,
             "anchors_version": self.anchors_version,
         }
 

@@ -38,7 +38,9 @@ class SlamWorld:
     def update(self, t: float, obs: dict[str, np.ndarray], T_odom: np.ndarray) -> WorldStep:
         # only the odometry's change between calls is used: the prior must not contain the
         # front-end's own corrections, or each correction would be applied again every frame
-        fr = self.slam.process(t, obs["rgb"], obs["depth"], T_odom @ self.T_base_cam)
+        tc = self.obstacles.transient
+        dynamic = tc.appeared_at if tc is not None and tc.cfg.mask_tracking else None
+        fr = self.slam.process(t, obs["rgb"], obs["depth"], T_odom @ self.T_base_cam, dynamic)
         T_wc = fr.T_world_cam
         self._pose = T_wc @ inv_T(self.T_base_cam)
         self.obstacles.integrate(
@@ -82,6 +84,7 @@ class SlamWorld:
             "local_frames": s["local_frames"],
             "map_frames_skipped": s["map_frames_skipped"],
             "carved_points": s["carved_points"],
+            "dynamic_points": s["dynamic_points"],
         }
 
     def revisit_events(self) -> dict[str, Any]:

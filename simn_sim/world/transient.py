@@ -75,7 +75,11 @@ class TransientConfig(Config):
     that last saw the slab free, and at least ``point_min`` of them (0: off; see
     :meth:`TransientCells._points_seen_free`). point_deg: that test reads the nearest depth
     within this angle (deg) of the pixel. It keeps the last ``window`` + 1 depth images
-    (float16): 15.5 MB at 320x240, 62 MB at 640x480 with ``window`` 100."""
+    (float16): 15.5 MB at 320x240, 62 MB at 640x480 with ``window`` 100. mask_tracking: the
+    front-end leaves the points that fall in appeared slabs (at the predicted pose) out of
+    registration (tracking and revisit checks) and out of the maps it registers against (the
+    surface store and the learned map); the obstacle stores keep them (see
+    :meth:`~simn_sim.slam.pipeline.SimnSlam.process`, ``dynamic``)."""
 
     keep_views: int = 0
     window: int = 100
@@ -89,6 +93,7 @@ class TransientConfig(Config):
     point_share: float = 0.5
     point_min: int = 3
     point_deg: float = 0.5
+    mask_tracking: bool = False
 
     def validate(self) -> None:
         n = type(self).__name__
