@@ -85,7 +85,9 @@ class Frame:
         and its validity stay whole (they are the image, not the points)."""
         keep = np.asarray(keep)
         if keep.dtype != bool or keep.shape != (len(self),):
-            raise ValueError(f"keep must be a ({len(self)},) bool mask, got {keep.dtype} {keep.shape}")
+            raise ValueError(
+                f"keep must be a ({len(self)},) bool mask, got {keep.dtype} {keep.shape}"
+            )
 
         def sub(a: np.ndarray | None) -> np.ndarray | None:
             return None if a is None else a[keep]

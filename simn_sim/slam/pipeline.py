@@ -232,7 +232,9 @@ class SimnSlam:
             T_guess = frames.topo.anchor(frames.current_id) @ orthonormalize(tr.predict(t, prior))
             moving = np.asarray(dynamic(transform_points(T_guess, frame.points.astype(np.float64))))
             if moving.shape != (len(frame),) or moving.dtype != bool:
-                raise ValueError(f"dynamic must give a ({len(frame)},) bool mask, got {moving.shape}")
+                raise ValueError(
+                    f"dynamic must give a ({len(frame)},) bool mask, got {moving.shape}"
+                )
             if moving.any():
                 keep = ~moving
                 self.n_dynamic_points += int(moving.sum())
