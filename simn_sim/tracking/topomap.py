@@ -254,6 +254,13 @@ class LoopClosureConfig(Config):
     good_enough_fraction: float = 0.95  # stop the yaw search at a result this good
     cov_floor_rot: float = 0.002  # rad, added in quadrature to the registration covariance
     cov_floor_trans: float = 0.005  # m
+    # ambiguity: when registrations from different starting headings pass but end further
+    # apart than this (m, deg), the candidate fails: the scene leaves the pose free along some
+    # direction (a wall seen flat on), and the best inlier fraction is a near-tie between
+    # the ends (dyn-ref-002: 4 passing results 0.91-0.93 spread over 0.14 m; the one
+    # accepted was 0.13 m from the truth). 0: off
+    max_spread_m: float = 0.0
+    max_spread_deg: float = 0.0
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -265,6 +272,8 @@ class LoopClosureConfig(Config):
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
         require(self.cov_floor_rot > 0 and self.cov_floor_trans > 0, n, "cov_floor_rot", "> 0")
+        require(self.max_spread_m >= 0, n, "max_spread_m", "must be >= 0 (0: off)")
+        require(self.max_spread_deg >= 0, n, "max_spread_deg", "must be >= 0 (0: off)")
         require(len(self.yaw_search_deg) >= 1, n, "yaw_search_deg", "needs at least one heading")
         require(0 < self.min_inlier_fraction <= 1, n, "min_inlier_fraction", "must be in (0, 1]")
         require(
@@ -401,12 +410,14 @@ def verify_candidate_steps(
     the frame from the guess and from the guess turned by each ``yaw_search_deg``; a result
     passes when it moves the guess by at most the drift budget and at least
     ``min_inlier_fraction`` of the points fit. Returns (the best passing registration, "ok") or
-    (None, why each heading failed). Nothing in ``topo`` changes."""
+    (None, why each heading failed). With ``max_spread_m`` / ``max_spread_deg``, passing
+    results that lie further apart than that fail the candidate as ambiguous. Nothing in
+    ``topo`` changes."""
     cfg = cfg or LoopClosureConfig()
     T_world_cam = check_pose(T_world_cam, "T_world_cam")
     A = topo.anchor(fid)
     guess = inv_T(A) @ T_world_cam
-    best, whys = None, []
+    best, whys, passed = None, [], []
     for yaw in cfg.yaw_search_deg:
         # turn the guess about the world vertical through the camera centre (drift is
         # mostly heading for a ground robot; it is what leaves the registration basin first)
@@ -425,12 +436,24 @@ def verify_candidate_steps(
         if frac < cfg.min_inlier_fraction:
             whys.append(f"{yaw:+.1f} deg: only {frac:.2f} of the points fit")
             continue
+        passed.append(res.pose)
         if best is None or frac > best[1]:
             best = (res, frac)
         if frac >= cfg.good_enough_fraction:
             break
     if best is None:
         return None, "; ".join(whys)
+    if (cfg.max_spread_m > 0 or cfg.max_spread_deg > 0) and len(passed) > 1:
+        apart = [pose_error(a, b) for k, a in enumerate(passed) for b in passed[k + 1 :]]
+        dt = max(d for d, _ in apart)
+        dr = float(np.degrees(max(r for _, r in apart)))
+        if (cfg.max_spread_m > 0 and dt > cfg.max_spread_m) or (
+            cfg.max_spread_deg > 0 and dr > cfg.max_spread_deg
+        ):
+            return (
+                None,
+                f"ambiguous: {len(passed)} passing results up to {dt:.2f} m / {dr:.1f} deg apart",
+            )
     return best[0], "ok"
 
 
