@@ -374,3 +374,57 @@ def test_descriptor_from_a_subsample_keeps_the_region_and_the_ranking(drifted_to
     assert top_sub[0] == top_full[0] and top_sub[0] in (0, 1)
     with pytest.raises(_ConfigError, match="max_points"):
         DescriptorConfig(max_points=-1)
+
+
+def test_passing_registrations_far_apart_make_the_candidate_ambiguous(drifted_topomap) -> None:
+    """Registrations from the five starting headings that all pass but end at different
+    places (a scene that leaves the pose free along a wall): with the spread limits the
+    candidate fails as ambiguous; results that agree pass; without the limits the best
+    inlier fraction wins as before."""
+    from simn_sim.tracking.registration import RegistrationResult
+    from simn_sim.tracking.topomap import verify_candidate_steps
+
+    topo, gt, obs, est = drifted_topomap
+    cur, fid = len(gt) - 1, 0
+    guess = inv_T(topo.anchor(fid)) @ est[cur]
+
+    def run(offsets_m: list[float], cfg: LoopClosureConfig):
+        """The k-th registration ends ``offsets_m[k]`` metres along the camera's x axis from the
+        guess, fitting 0.90 + 0.01 k of the points (none reaches good_enough_fraction)."""
+        calls = iter(range(len(offsets_m)))
+
+        def register(f, pts, T_init):
+            k = next(calls)
+            pose = guess @ make_T(np.eye(3), [offsets_m[k], 0.0, 0.0])
+            return RegistrationResult(
+                pose,
+                np.eye(6) * 1e-6,
+                5,
+                1000,
+                900,
+                0.004,
+                0.01,
+                True,
+                "ok",
+                True,
+                0.1,
+                0.0,
+                0.90 + 0.01 * k,
+            )
+
+        steps = verify_candidate_steps(topo, fid, obs[cur], est[cur], register, cfg)
+        try:
+            while True:
+                next(steps)
+        except StopIteration as done:
+            return done.value
+
+    spread = LoopClosureConfig(max_spread_m=0.05, max_spread_deg=2.0)
+    res, why = run([0.0, 0.03, 0.06, 0.10, 0.14], spread)  # 0.14 m apart: ambiguous
+    assert res is None and why.startswith("ambiguous: 5 passing results up to 0.14 m"), why
+    res, why = run([0.0, 0.01, 0.02, 0.01, 0.0], spread)  # they agree: the best one passes
+    assert why == "ok" and pose_error(res.pose, guess)[0] == pytest.approx(0.0, abs=1e-9)
+    res, why = run([0.0, 0.03, 0.06, 0.10, 0.14], LoopClosureConfig())  # limits off
+    assert why == "ok" and pose_error(res.pose, guess)[0] == pytest.approx(0.14, abs=1e-9)
+    with pytest.raises(_ConfigError, match="max_spread_m"):
+        LoopClosureConfig(max_spread_m=-0.1)
