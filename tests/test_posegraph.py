@@ -428,3 +428,34 @@ def test_passing_registrations_far_apart_make_the_candidate_ambiguous(drifted_to
     assert why == "ok" and pose_error(res.pose, guess)[0] == pytest.approx(0.14, abs=1e-9)
     with pytest.raises(_ConfigError, match="max_spread_m"):
         LoopClosureConfig(max_spread_m=-0.1)
+
+
+def test_drift_budget_grows_with_the_arc_path_between_the_frames() -> None:
+    from simn_sim.tracking.topomap import drift_budget
+
+    topo, gt, obs, est = _make_drifted_topomap()
+    cur = len(gt) - 1
+    # no loop yet: the shortest path is the odometry chain, 0 -> 1 -> ... -> cur
+    chain = sum(float(np.linalg.norm(T[:3, 3])) for i, j, T, _ in topo.arcs("odom"))
+    cfg = LoopClosureConfig(drift_floor_m=0.05, drift_per_m=0.03, max_correction_m=10.0)
+    assert drift_budget(topo, 0, cur, cfg) == pytest.approx(0.05 + 0.03 * chain)
+    assert drift_budget(topo, cur - 4, cur, cfg) < drift_budget(topo, 0, cur, cfg)
+    assert drift_budget(topo, 0, cur, LoopClosureConfig()) == LoopClosureConfig().max_correction_m
+    # capped by max_correction_m
+    cap = LoopClosureConfig(drift_per_m=0.03, max_correction_m=0.2)
+    assert drift_budget(topo, 0, cur, cap) == 0.2
+    # a close frame pair gets a budget too small for a correction the chain cannot have made
+    tight = LoopClosureConfig(drift_floor_m=0.01, drift_per_m=0.001)
+    est_off = est[cur] @ make_T(np.eye(3), [0.3, 0.0, 0.0])  # the guess 0.3 m off
+    res = close_loop(
+        topo, cur, obs[cur], est_off, registration_callback(topo), tight, candidate_ids=[0, 1]
+    )
+    assert res.accepted is None
+    assert any("correction" in a.reason for a in res.attempts), [a.reason for a in res.attempts]
+    # the same check with the budget off moves the guess back and closes the loop
+    res = close_loop(
+        topo, cur, obs[cur], est_off, registration_callback(topo), candidate_ids=[0, 1]
+    )
+    assert res.accepted in (0, 1), [a.reason for a in res.attempts]
+    # a closed loop is a short path: frames joined by it get the floor's budget
+    assert drift_budget(topo, 0, cur, cfg) < 0.05 + 0.03 * 0.5

@@ -261,6 +261,13 @@ class LoopClosureConfig(Config):
     # accepted was 0.13 m from the truth). 0: off
     max_spread_m: float = 0.0
     max_spread_deg: float = 0.0
+    # drift budget by distance: the check may move the guess by at most drift_floor_m +
+    # drift_per_m x the length of the shortest arc path between the two frames in the graph
+    # (and never beyond max_correction_m): two frames a few metres apart along the chain, or
+    # joined by an earlier loop, cannot have drifted decimetres apart (dyn-ref-002: a check
+    # 3 m along the chain moved a guess that was 6 mm off the truth by 0.16 m). 0: off
+    drift_floor_m: float = 0.05
+    drift_per_m: float = 0.0
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -274,6 +281,8 @@ class LoopClosureConfig(Config):
         require(self.cov_floor_rot > 0 and self.cov_floor_trans > 0, n, "cov_floor_rot", "> 0")
         require(self.max_spread_m >= 0, n, "max_spread_m", "must be >= 0 (0: off)")
         require(self.max_spread_deg >= 0, n, "max_spread_deg", "must be >= 0 (0: off)")
+        require(self.drift_floor_m >= 0, n, "drift_floor_m", "must be >= 0")
+        require(self.drift_per_m >= 0, n, "drift_per_m", "must be >= 0 (0: off)")
         require(len(self.yaw_search_deg) >= 1, n, "yaw_search_deg", "needs at least one heading")
         require(0 < self.min_inlier_fraction <= 1, n, "min_inlier_fraction", "must be in (0, 1]")
         require(
@@ -377,7 +386,13 @@ def close_loop_steps(
     attempts: list[LoopAttempt] = []
     for fid, sim in cands:
         res, why = yield from verify_candidate_steps(
-            topo, fid, points_cam, T_world_cam, register_fn, cfg
+            topo,
+            fid,
+            points_cam,
+            T_world_cam,
+            register_fn,
+            cfg,
+            drift_budget(topo, fid, current, cfg),
         )
         if res is None:
             attempts.append(LoopAttempt(fid, sim, False, why, None))
@@ -397,6 +412,19 @@ def close_loop_steps(
     return LoopClosureResult(None, attempts, None, None)
 
 
+def drift_budget(topo: TopoMap, i: int, j: int, cfg: LoopClosureConfig) -> float:
+    """The most a revisit check of frame ``j`` against frame ``i`` may move its guess (m):
+    ``max_correction_m``, or with ``drift_per_m`` the smaller of that and ``drift_floor_m`` +
+    ``drift_per_m`` x the shortest arc path between them (the arcs' translation lengths)."""
+    if cfg.drift_per_m <= 0:
+        return cfg.max_correction_m
+    try:
+        path = nx.shortest_path_length(topo.graph, i, j, weight="weight")
+    except (nx.NetworkXNoPath, nx.NodeNotFound):
+        return cfg.max_correction_m
+    return min(cfg.max_correction_m, cfg.drift_floor_m + cfg.drift_per_m * float(path))
+
+
 def verify_candidate_steps(
     topo: TopoMap,
     fid: int,
@@ -404,16 +432,19 @@ def verify_candidate_steps(
     T_world_cam: np.ndarray,
     register_fn: RegisterFn,
     cfg: LoopClosureConfig | None = None,
+    max_move_m: float | None = None,
 ) -> Generator[None, None, tuple[RegistrationResult | None, str]]:
     """The verification of one revisit candidate ``fid`` (a generator that yields after each
     registration): the observation ``points_cam`` taken at ``T_world_cam`` is registered against
     the frame from the guess and from the guess turned by each ``yaw_search_deg``; a result
     passes when it moves the guess by at most the drift budget and at least
     ``min_inlier_fraction`` of the points fit. Returns (the best passing registration, "ok") or
-    (None, why each heading failed). With ``max_spread_m`` / ``max_spread_deg``, passing
+    (None, why each heading failed). ``max_move_m``: the drift budget (default
+    ``max_correction_m``; :func:`drift_budget`). With ``max_spread_m`` / ``max_spread_deg``, passing
     results that lie further apart than that fail the candidate as ambiguous. Nothing in
     ``topo`` changes."""
     cfg = cfg or LoopClosureConfig()
+    budget = cfg.max_correction_m if max_move_m is None else float(max_move_m)
     T_world_cam = check_pose(T_world_cam, "T_world_cam")
     A = topo.anchor(fid)
     guess = inv_T(A) @ T_world_cam
@@ -429,7 +460,7 @@ def verify_candidate_steps(
             whys.append(f"{yaw:+.1f} deg: registration: {res.reason}")
             continue
         dt, dr = pose_error(guess, res.pose)
-        if dt > cfg.max_correction_m or np.degrees(dr) > cfg.max_correction_deg:
+        if dt > budget or np.degrees(dr) > cfg.max_correction_deg:
             whys.append(f"{yaw:+.1f} deg: correction {dt:.2f} m / {np.degrees(dr):.1f} deg")
             continue
         frac = getattr(res, "inlier_fraction", 1.0)
