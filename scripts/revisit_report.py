@@ -2,7 +2,7 @@
 
 Reads ``episodes.jsonl`` of each batch folder (``simn-sim batch --out DIR``) and prints, per
 folder and agent: accepted revisits, correct ones (loop arc within 0.2 m / 5 deg of the true
-one), precision = correct / accepted, opportunities (frames opened near a frame the check may
+one) and of those the ones more than 0.05 m off, precision = correct / accepted, opportunities (frames opened near a frame the check may
 consider), recall = opportunities closed by a correct revisit / opportunities, and the median
 of the episodes' median arc errors. Definitions: ``simn_sim/eval/revisits.py``.
 
@@ -30,11 +30,13 @@ def pooled(records: list[dict]) -> dict:
     closed = sum(int(r["revisit_opportunities_closed"]) for r in rs)
     em = [r["revisit_err_m_median"] for r in rs if r.get("revisit_err_m_median") is not None]
     ed = [r["revisit_err_deg_median"] for r in rs if r.get("revisit_err_deg_median") is not None]
+    fine = [r.get("revisits_off_fine") for r in rs]  # None in records before 2026-12-07
     return {
         "episodes": len(rs),
         "accepted": acc,
         "correct": cor,
         "precision": cor / acc if acc else None,
+        "off_fine": None if any(v is None for v in fine) else sum(int(v) for v in fine),
         "opportunities": opp,
         "closed": closed,
         "recall": closed / opp if opp else None,
@@ -64,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
         f = lambda v, n=3: "-" if v is None else f"{v:.{n}f}"  # noqa: E731
         print(
             f"{k}: {p['episodes']} episodes, revisits {p['accepted']} accepted, "
-            f"{p['correct']} correct (precision {f(p['precision'])}); opportunities "
+            f"{p['correct']} correct (precision {f(p['precision'])}, "
+            f"{'-' if p['off_fine'] is None else p['off_fine']} of them over 0.05 m off); opportunities "
             f"{p['opportunities']}, closed {p['closed']} (recall {f(p['recall'])}); "
             f"arc error median {f(p['err_m_median'])} m / {f(p['err_deg_median'], 2)} deg"
         )

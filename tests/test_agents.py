@@ -376,6 +376,7 @@ def test_episode_record_has_act_timing_and_tracking_map():
     assert rec["steps"] == 5 and rec["tracking_map"] == "learned"
     # one local frame in 5 steps: nothing to revisit, judged as such against the true poses
     assert rec["revisit_opportunities"] == 0 and rec["revisits_correct"] == 0
+    assert rec["revisits_off_fine"] == 0
     assert rec["revisit_err_m_median"] is None
     assert 0 < rec["act_ms_mean"] <= rec["act_ms_p95"] * 5
     assert rec["act_ms_p95"] > 0

@@ -47,6 +47,13 @@ def test_a_closing_loop_is_one_opportunity_and_an_exact_arc_is_correct():
     # only frame 8 opens within 0.75 m / 30 deg of an earlier frame (frame 0, 8 frames back)
     assert out["revisit_opportunities"] == 1
     assert out["revisits_correct"] == 1 and out["revisit_opportunities_closed"] == 1
+    assert out["revisits_off_fine"] == 0  # the 0.3 m arc is wrong, not "correct but off"
+    # an arc 0.12 m off: correct at 0.2 m, off at 0.05 m
+    near = truth.copy()
+    near[:3, 3] += [0.0, 0.12, 0.0]
+    fine = revisit_truth(frame_obs, [(8, 0, near)], poses, exclude_recent=3)
+    assert fine["revisits_correct"] == 1 and fine["revisits_off_fine"] == 1
+    assert revisit_truth(frame_obs, [(8, 0, near)], poses, fine_m=0.15)["revisits_off_fine"] == 0
     # errors of the two arcs: 0 and 0.3 m -> median 0.15 m, rotations exact
     assert out["revisit_err_m_median"] == pytest.approx(0.15, abs=1e-9)
     assert out["revisit_err_deg_median"] == pytest.approx(0.0, abs=1e-6)
@@ -115,5 +122,8 @@ def test_revisit_report_pools_counts_over_episodes(tmp_path):
     assert p["episodes"] == 2 and p["accepted"] == 4 and p["correct"] == 3
     assert p["precision"] == 0.75 and p["recall"] == 0.25  # 3/4 and 1/4
     assert p["err_m_median"] == pytest.approx(0.03)
+    assert p["off_fine"] is None  # these records predate revisits_off_fine
+    recs[0]["revisits_off_fine"], recs[1]["revisits_off_fine"] = 1, 0
+    assert mod.pooled(recs)["off_fine"] == 1
     (tmp_path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
     assert mod.main([str(tmp_path)]) == 0

@@ -48,6 +48,7 @@ RECORD_FIELDS = (
     "tracking_map",
     "ate_rmse_m",
     "revisits_correct",
+    "revisits_off_fine",
     "revisit_opportunities",
     "revisit_opportunities_closed",
     "revisit_err_m_median",
