@@ -2,8 +2,8 @@
 
 Reads ``episodes.jsonl`` of each batch folder (``simn-sim batch --out DIR``) and prints, per
 folder and agent: accepted revisits, correct ones (loop arc within 0.2 m / 5 deg of the true
-one) and of those the ones more than 0.05 m off, precision = correct / accepted, opportunities (frames opened near a frame the check may
-consider), recall = opportunities closed by a correct revisit / opportunities, and the median
+one) and of those the ones more than 0.05 m off, precision = correct / accepted,
+opportunities (frames opened near a frame the check may consider), recall = opportunities closed by a correct revisit / opportunities, and the median
 of the episodes' median arc errors. Definitions: ``simn_sim/eval/revisits.py``.
 
     .venv/bin/python scripts/revisit_report.py runs/v2_rrtstar [more dirs]

@@ -68,6 +68,7 @@ def revisit_truth(
     anchors = [np.asarray(T_world_cam_true[int(i)], float) for i in frame_obs]
     errs_m, errs_deg = [], []
     correct_q = set()
+    n_correct = n_off_fine = 0
     for q, c, T in accepted:
         if not (0 <= q < len(anchors) and 0 <= c < len(anchors)):
             raise ValueError(f"revisit_truth: revisit {q} -> {c} names an unknown frame")
@@ -77,7 +78,8 @@ def revisit_truth(
         errs_deg.append(math.degrees(dr))
         if dt <= tol_m and math.degrees(dr) <= tol_deg:
             correct_q.add(q)
-    n_correct = sum(1 for m, d in zip(errs_m, errs_deg, strict=True) if m <= tol_m and d <= tol_deg)
+            n_correct += 1
+            n_off_fine += int(dt > fine_m)
     opp = []
     for q in range(len(anchors)):
         for c in range(q - exclude_recent + 1):
@@ -87,9 +89,7 @@ def revisit_truth(
                 break
     return {
         "revisits_correct": n_correct,
-        "revisits_off_fine": sum(
-            1 for m, d in zip(errs_m, errs_deg, strict=True) if fine_m < m <= tol_m and d <= tol_deg
-        ),
+        "revisits_off_fine": n_off_fine,
         "revisit_opportunities": len(opp),
         "revisit_opportunities_closed": sum(1 for q in opp if q in correct_q),
         "revisit_err_m_median": float(np.median(errs_m)) if errs_m else None,

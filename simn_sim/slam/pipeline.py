@@ -233,7 +233,8 @@ class SimnSlam:
             moving = np.asarray(dynamic(transform_points(T_guess, frame.points.astype(np.float64))))
             if moving.shape != (len(frame),) or moving.dtype != bool:
                 raise ValueError(
-                    f"dynamic must give a ({len(frame)},) bool mask, got {moving.shape}"
+                    f"dynamic must give a ({len(frame)},) bool mask, got {moving.dtype} "
+                    f"{moving.shape}"
                 )
             if moving.any():
                 keep = ~moving
