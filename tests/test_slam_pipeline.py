@@ -271,12 +271,14 @@ def test_fusion_weighs_the_scaled_registration_covariance_against_the_prior():
         np.testing.assert_allclose(se3_log(fused), expect, rtol=1e-6, atol=1e-12)
 
 
-def test_learned_tracking_revisit_checks_use_the_tracking_validity_floor():
-    """Revisit checks register against the same learned SDF as tracking, so the preset gives
-    both one gradient-norm validity floor (the revisit check had the point store's 0.5, which
-    left 7-8 % of an observation without an SDF on TUM fr1/rpy; docs/slam.md)."""
+def test_learned_tracking_preset_verifies_revisits_on_the_surface_store():
+    """The preset's revisit checks verify on the surface store, as the closed-loop agent's
+    (``revisit_sdf: points``: 4 revisits of TUM fr1/rpy against 1 on the learned SDF;
+    docs/slam.md); switched back to the learned SDF they take tracking's gradient-norm validity
+    floor (the point store's 0.5 left 7-8 % of an observation without an SDF there)."""
     cfg = SlamConfig.for_learned_tracking()
     assert cfg.track_sdf == "implicit"
+    assert cfg.revisit_sdf == "points" == SlamConfig.for_agent().revisit_sdf
     assert cfg.registration.grad_norm_min == cfg.track_registration.grad_norm_min < 0.5
     # a change of the preset keeps them apart only when asked
     c2 = SlamConfig.for_learned_tracking(registration={"grad_norm_min": 0.4})

@@ -91,15 +91,20 @@ def learned_tracking_preset(**changes: Any) -> SlamConfig:
     (reusing them while a point moved < 2 cm stopped LM early: maps at the true poses, noisy
     desk, error after LM from a 1.7 cm / 0.9 deg offset 7.6 mm / 0.30 deg with reuse, 4.8 mm
     / 0.09 deg without) and a point further than 3 cm along the surface from the map has no
-    SDF. The preset ``simn-sim slam`` starts from; its ATE against the targets, sequence by
-    sequence, is in docs/slam.md (missed on 7 of 12 at the last run, 2026-12-02)."""
+    SDF. Revisit checks, ranked by the learned key-point features, verify by registration
+    against the frame's surface store (``revisit_sdf: points``, as the closed-loop agent): on
+    TUM fr1/rpy the learned SDF's checks accepted 1 revisit (ATE 3.22 cm), the store's 4
+    (2.11 cm; docs/slam.md). The preset ``simn-sim slam`` starts from; its ATE against the
+    targets, sequence by sequence, is in docs/slam.md (missed on 7 of 12 at the last run,
+    2026-12-02)."""
     d = SlamConfig().to_dict()
     # the gradient-norm validity floor on the learned map: 0.5 made points flip between
     # valid and invalid where the blended planes of noisy normals meet, so LM's cost jumped
-    # and it stopped early. The revisit checks register against the same learned SDF and
-    # take the same floor (with 0.5, 7-8 % of an observation had no valid SDF against 2-3 %
+    # and it stopped early. A revisit check on the learned SDF (``revisit_sdf: tracking``)
+    # takes the same floor (with 0.5, 7-8 % of an observation had no valid SDF against 2-3 %
     # on the point store, so no revisit of TUM fr1/rpy reached the 0.85 inlier share;
-    # docs/slam.md)
+    # docs/slam.md); on the surface store, the default, the floor does not act (its SDF is a
+    # plane distance, gradient norm 1)
     floor = 0.3
     d.update(
         track_sdf="implicit",
@@ -108,6 +113,7 @@ def learned_tracking_preset(**changes: Any) -> SlamConfig:
         track_registration={**d["track_registration"], "grad_norm_min": floor},
         registration={**d["registration"], "grad_norm_min": floor},
         mapper=tracking_mapper_config().to_dict(),
+        revisit_sdf="points",
     )
     return SlamConfig.from_dict(merge_changes(d, changes))
 
