@@ -9,7 +9,8 @@ mapping, planning on the steps that plan) and the ratio of the mean to the contr
 the odometry-only ablation measured in the same run. ``--sensing`` (default ``ideal``; the
 current timings, docs/tracking.md "In the loop: act() at 320x240", were measured with
 ``--sensing realistic``) picks the env's sensing condition; ``--odom-noise`` overrides its
-odometry drift. ``--episode-ids`` picks episodes by id, ``--max-steps`` cuts
+odometry drift. ``--variant NAME JSON`` adds an agent config (changes to the default, as
+``simn-sim batch --agent-config``). ``--episode-ids`` picks episodes by id, ``--max-steps`` cuts
 each episode short, ``--stages`` adds the per-stage self times of the SLAM front-end (as
 ``scripts/bench_learned_tracking.py``: perception, k-NN and network of tracking, LM, map
 insertion, k-NN and optimiser of training, the rest of ``SimnSlam.process``), ms per step, and
@@ -181,7 +182,26 @@ def main() -> int:
     ap.add_argument("--episode-ids", nargs="+", default=None, help="these episodes (by id)")
     ap.add_argument("--max-steps", type=int, default=0, help="cut each episode after N steps")
     ap.add_argument("--stages", action="store_true", help="per-stage self times of the front-end")
+    ap.add_argument(
+        "--variant",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("NAME", "JSON"),
+        help="also run the agent config JSON (changes to the default, as --agent-config) as NAME",
+    )
     a = ap.parse_args()
+    configs = {name: CONFIGS[name] for name in a.configs}
+    for name, text in a.variant:
+        try:
+            cfg = json.loads(text)
+        except json.JSONDecodeError as e:
+            ap.error(f"--variant {name}: not JSON: {e}")
+        if not isinstance(cfg, dict):
+            ap.error(f"--variant {name}: must be a JSON object, got {type(cfg).__name__}")
+        if name in configs:
+            ap.error(f"--variant {name}: the name is taken")
+        configs[name] = cfg
     import torch
 
     torch.set_num_threads(1)  # as the agent's SLAM sets it (SlamConfig.torch_threads)
@@ -223,8 +243,8 @@ def main() -> int:
         "episodes": [e.episode_id for e in picked],
         "configs": {},
     }
-    for name in a.configs:
-        res["configs"][name] = run(CONFIGS[name], picked, env_cfg, period, a.max_steps, timer, name)
+    for name, cfg in configs.items():
+        res["configs"][name] = run(cfg, picked, env_cfg, period, a.max_steps, timer, name)
         r = res["configs"][name]
         s = r["act_ms"]
         print(
