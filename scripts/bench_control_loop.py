@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 
 import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
+from simn_sim.config import ConfigError, json_object  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
 from simn_sim.slam.config import SlamConfig  # noqa: E402
@@ -193,15 +194,12 @@ def main() -> int:
     a = ap.parse_args()
     configs = {name: CONFIGS[name] for name in a.configs}
     for name, text in a.variant:
-        try:
-            cfg = json.loads(text)
-        except json.JSONDecodeError as e:
-            ap.error(f"--variant {name}: not JSON: {e}")
-        if not isinstance(cfg, dict):
-            ap.error(f"--variant {name}: must be a JSON object, got {type(cfg).__name__}")
         if name in configs:
             ap.error(f"--variant {name}: the name is taken")
-        configs[name] = cfg
+        try:
+            configs[name] = json_object(text, f"--variant {name}")
+        except ConfigError as e:
+            ap.error(str(e))
     import torch
 
     torch.set_num_threads(1)  # as the agent's SLAM sets it (SlamConfig.torch_threads)

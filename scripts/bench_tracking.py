@@ -39,6 +39,7 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from simn_sim.config import ConfigError, json_object  # noqa: E402
 from simn_sim.eval.trajectory import ate_rpe  # noqa: E402
 from simn_sim.geometry.se3 import inv_T, pose_error  # noqa: E402
 from simn_sim.io.tum import read_tum  # noqa: E402
@@ -230,11 +231,9 @@ def main() -> int:
     variants = []
     for name, text in a.variant:
         try:
-            changes = json.loads(text)
-        except json.JSONDecodeError as e:
-            ap.error(f"--variant {name}: not valid JSON ({e})")
-        if not isinstance(changes, dict):
-            ap.error(f"--variant {name}: expected a JSON object, got {text!r}")
+            changes = json_object(text, f"--variant {name}")
+        except ConfigError as e:
+            ap.error(str(e))
         variants.append(
             (name, load_slam_config(None, default_preset="learned_tracking", **changes))
         )

@@ -141,3 +141,15 @@ def require(cond: bool, cls_name: str, field: str, msg: str) -> None:
     """Raise a :class:`ConfigError` naming ``cls_name.field`` unless ``cond``."""
     if not cond:
         raise ConfigError(f"{cls_name}.{field}: {msg}")
+
+
+def json_object(text: str, what: str) -> dict[str, Any]:
+    """``text`` parsed as a JSON object (a config given on a command line); a
+    :class:`ConfigError` naming ``what`` when it is not JSON or not an object."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"{what}: not valid JSON ({e})") from None
+    if not isinstance(value, dict):
+        raise ConfigError(f"{what}: expected a JSON object, got {text!r}")
+    return value

@@ -479,3 +479,17 @@ def test_closing_the_agent_stops_training_and_frees_the_episode_maps(env):
     )
     assert rec["error"] is None and rec["tracking_map"] == "learned"
     assert _train_threads() <= before  # the runner closed the episode's agent
+
+
+def test_json_object_parses_a_command_line_config_and_names_bad_input():
+    """``json_object`` (the benchmarks' ``--variant NAME JSON``): an object comes back as a
+    dict; text that is not JSON, or JSON that is not an object, fails naming the option."""
+    from simn_sim.config import json_object
+
+    assert json_object('{"slam": {"train_every": 2}}', "--variant a") == {
+        "slam": {"train_every": 2}
+    }
+    with pytest.raises(ConfigError, match=r"--variant b: not valid JSON"):
+        json_object("{slam: 2}", "--variant b")
+    with pytest.raises(ConfigError, match=r"--variant c: expected a JSON object, got '\[1\]'"):
+        json_object("[1]", "--variant c")
