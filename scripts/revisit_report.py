@@ -3,8 +3,9 @@
 Reads ``episodes.jsonl`` of each batch folder (``simn-sim batch --out DIR``) and prints, per
 folder and agent: accepted revisits, correct ones (loop arc within 0.2 m / 5 deg of the true
 one) and of those the ones more than 0.05 m off, precision = correct / accepted,
-opportunities (frames opened near a frame the check may consider), recall = opportunities closed by a correct revisit / opportunities, and the median
-of the episodes' median arc errors. Definitions: ``simn_sim/eval/revisits.py``.
+opportunities (frames opened near a frame the check may consider), recall = opportunities
+closed by a correct revisit / opportunities, and the median of the episodes' median arc
+errors. Definitions: ``simn_sim/eval/revisits.py``.
 
     .venv/bin/python scripts/revisit_report.py runs/v2_rrtstar [more dirs]
 """
@@ -67,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{k}: {p['episodes']} episodes, revisits {p['accepted']} accepted, "
             f"{p['correct']} correct (precision {f(p['precision'])}, "
-            f"{'-' if p['off_fine'] is None else p['off_fine']} of them over 0.05 m off); opportunities "
+            f"{'-' if p['off_fine'] is None else p['off_fine']} of them over 0.05 m off); "
+            "opportunities "
             f"{p['opportunities']}, closed {p['closed']} (recall {f(p['recall'])}); "
             f"arc error median {f(p['err_m_median'])} m / {f(p['err_deg_median'], 2)} deg"
         )
