@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from simn_sim.config import Config, require
+from simn_sim.geometry.bounds import finite_rows
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.se3 import transform_points
 
@@ -111,7 +112,7 @@ def fit_floor_plane(
     cfg = cfg or FloorClassifierConfig()
     rng = rng or np.random.default_rng(0)
     P = _check_points(points).astype(np.float64)
-    P = P[np.isfinite(P).all(axis=1)]
+    P = P[finite_rows(P)]
     if len(P) < cfg.min_floor_inliers:
         raise FloorNotFoundError(f"only {len(P)} finite points; need {cfg.min_floor_inliers}")
     if len(P) > cfg.max_points_fit:
@@ -157,7 +158,7 @@ def estimate_normals(points: np.ndarray, k: int = 12, towards_origin: bool = Fal
     """
     P = _check_points(points).astype(np.float64)
     out = np.full(P.shape, np.nan)
-    fin = np.isfinite(P).all(axis=1)
+    fin = finite_rows(P)
     Q = P[fin]
     if len(Q) < 3:
         return out
@@ -182,7 +183,7 @@ def normals_from_organized(points_hw3: np.ndarray, max_jump: float = 0.05) -> np
     if P.ndim != 3 or P.shape[2] != 3:
         raise ValueError(f"points_hw3 must be (H, W, 3), got {P.shape}")
     z = P[..., 2]
-    valid = np.isfinite(P).all(axis=2) & (z > 0)
+    valid = finite_rows(P) & (z > 0)
     out = np.full(P.shape, np.nan)
     c = P[1:-1, 1:-1]
     dx = P[1:-1, 2:] - P[1:-1, :-2]
@@ -231,9 +232,9 @@ def classify_points(
         n, d = np.array([0.0, 0.0, 1.0]), float(cfg.floor_height)
     else:
         n, d, _ = fit_floor_plane(P, cfg, rng)
-    fin = np.isfinite(P).all(axis=1)
+    fin = finite_rows(P)
     h = np.where(fin, P @ n - d, np.nan)
-    has_n = np.isfinite(N).all(axis=1)
+    has_n = finite_rows(N)
     cos_up = np.abs(np.where(has_n[:, None], N, 0.0) @ n)
     level = has_n & (cos_up >= np.cos(np.radians(cfg.max_floor_normal_deg)))
     steep = has_n & ~level
@@ -272,7 +273,7 @@ def classify_depth(
     per-valid-pixel :class:`SemanticResult` (normals from the image, frame = ``T_world_cam``'s)."""
     Pc = backproject(np.asarray(depth, dtype=np.float32), intr)
     Nc = normals_from_organized(Pc)
-    valid = np.isfinite(Pc).all(axis=2) & (Pc[..., 2] > 0)
+    valid = finite_rows(Pc) & (Pc[..., 2] > 0)
     T = np.asarray(T_world_cam, dtype=np.float64)
     Pw = transform_points(T, Pc[valid].astype(np.float64))
     Nw = Nc[valid] @ T[:3, :3].T

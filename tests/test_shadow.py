@@ -251,3 +251,26 @@ def test_blind_shadow_bad_input_is_named():
         may_continue_below_view(np.zeros((10, 10)), D435_INTR, T, 5, 2, 0.15)
     with pytest.raises(ValueError, match="rows"):
         may_continue_below_view(np.zeros((240, 320)), D435_INTR, T, 0, 2, 0.15)
+
+
+def test_top_contour_matches_a_sliding_window_reference_on_random_depth():
+    # the running minimum over shifted copies must give what a min over a sliding-window
+    # view of the row above gives (the definition), holes and image sides included
+    rng = np.random.default_rng(7)
+    d = rng.uniform(0.5, 4.0, (48, 64))
+    d[rng.random(d.shape) < 0.1] = 0.0
+    d[:6] = np.nan
+    for hw in (0, 1, 3):
+        dd = np.where(np.isfinite(d) & (d > 0), d, np.inf)
+        pad = np.pad(dd[:-1], ((0, 0), (hw, hw)), constant_values=0.0)
+        above = np.lib.stride_tricks.sliding_window_view(pad, 2 * hw + 1, axis=1).min(-1)
+        with np.errstate(invalid="ignore"):
+            brk = np.zeros(d.shape, bool)
+            brk[1:] = np.abs(dd[1:] - dd[:-1]) > 0.3
+            top = np.zeros(d.shape, bool)
+            top[1:] = brk[1:] & (above - dd[1:] > 0.3)
+        start = np.maximum.accumulate(np.where(brk, np.arange(48)[:, None], 0), axis=0)
+        ref = np.isfinite(d) & (d > 0) & np.take_along_axis(top, start, axis=0)
+        got = below_top_contour(d, 0.3, half_width=hw)
+        np.testing.assert_array_equal(got, ref)
+        assert ref.any() and not ref.all()

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from simn_sim.geometry.bounds import column_bounds
+
 __all__ = ["VoxelStore", "first_per_voxel", "voxel_mean"]
 
 
@@ -26,8 +28,9 @@ def _dense_keys(points: np.ndarray, voxel: float) -> np.ndarray:
     g = np.floor(points / voxel).astype(np.int64)  # in the input's dtype
     if len(g) == 0:
         return np.zeros(0, np.int64)
-    g -= g.min(axis=0)
-    span = g.max(axis=0) + 1
+    lo, hi = column_bounds(g)
+    g -= lo
+    span = hi - lo + 1
     return (g[:, 0] * span[1] + g[:, 1]) * span[2] + g[:, 2]
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from simn_sim.geometry.bounds import finite_rows
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.mapping.config import MapperConfig
 from simn_sim.mapping.continual import FrameReplay
@@ -158,7 +159,7 @@ class ImplicitMap:
             raise EmptyFrameError("integrate_frame: the frame has no points")
         cols = check_colors(colors, n_in)
         labs = check_labels(labels, n_in)
-        finite = np.isfinite(pts).all(axis=1)
+        finite = finite_rows(pts)
         n_dropped = int(n_in - finite.sum())
         if n_dropped == n_in:
             raise EmptyFrameError(f"integrate_frame: all {n_in} points are NaN/inf")
@@ -175,7 +176,7 @@ class ImplicitMap:
         full = (pts, nrm)  # the planes take every point with a normal, not the down-sampled
         if self.cfg.integrate_voxel_size > 0:
             if nrm is not None:  # average the normals with the colours (NaN rows: none)
-                has = np.isfinite(nrm).all(1)
+                has = finite_rows(nrm)
                 ext = np.concatenate([cols, np.where(has[:, None], nrm, 0.0)], 1)
                 pts, ext, labs = voxel_downsample(pts, self.cfg.integrate_voxel_size, ext, labs)
                 cols, nrm = ext[:, :3], ext[:, 3:]
@@ -199,7 +200,7 @@ class ImplicitMap:
         )
         if full[1] is not None:
             fp, fn = full
-            has = np.isfinite(fn).all(1)
+            has = finite_rows(fn)
             fp = (fp[has].astype(np.float64) @ T[:3, :3].T + T[:3, 3]).astype(np.float32)
             fn = (fn[has].astype(np.float64) @ T[:3, :3].T).astype(np.float32)
             self.points.accumulate_planes(

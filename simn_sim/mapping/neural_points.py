@@ -62,6 +62,7 @@ class NeuralPointMap:
         self.normal_sum = torch.empty((0, 3), dtype=torch.float32, device=d)
         self.plane_count = torch.empty((0,), dtype=torch.float32, device=d)
         self._plane_cache: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._plane_stale: list[torch.Tensor] = []  # rows changed since the cache was made
         self._trees: TreeIndex | None = None
         # bumped by every change of the points' tables (positions, features, colours, planes):
         # tables gathered at one version stay valid while it holds (TrackingSdf reuses them)
@@ -138,20 +139,38 @@ class NeuralPointMap:
         self.plane_sum.index_add_(0, ids, points[ok][hit])
         self.normal_sum.index_add_(0, ids, normals[ok][hit])
         self.plane_count.index_add_(0, ids, torch.ones_like(ids, dtype=torch.float32))
-        self._plane_cache = None
+        if self._plane_cache is not None:
+            self._plane_stale.append(ids)
         self.version += 1
 
     def planes(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Per neural point the mean observed surface point (N, 3) and the unit mean normal
         (N, 3) of its voxel; the normal is zero for points without any normal observation (so
         their plane term vanishes), and the mean point falls back to the point's position."""
+        n = len(self)
         if self._plane_cache is None:
-            c = self.plane_count.clamp(min=1.0)[:, None]
-            has = (self.plane_count > 0)[:, None]
-            q = torch.where(has, self.plane_sum / c, self.positions)
-            nn_ = self.normal_sum.norm(dim=1, keepdim=True)
-            nrm = torch.where(has & (nn_ > 1e-6), self.normal_sum / nn_.clamp(min=1e-6), 0.0)
-            self._plane_cache = (q.contiguous(), nrm.contiguous())
+            self._plane_cache = _plane_rows(
+                self.positions, self.plane_sum, self.normal_sum, self.plane_count
+            )
+        elif self._plane_stale or self._plane_cache[0].shape[0] != n:
+            # only the rows whose statistics changed (and new points): each row's values
+            # depend on its own statistics alone, so they equal a full recomputation
+            # (tests/test_mapping_prior.py); new tensors, as readers may hold the old ones
+            q, nrm = self._plane_cache
+            m = q.shape[0]
+            ids = torch.arange(m, n, device=self.device)
+            if self._plane_stale:
+                ids = torch.unique(torch.cat([*self._plane_stale, ids]))
+            z = torch.zeros((n - m, 3), dtype=torch.float32, device=self.device)
+            q, nrm = torch.cat([q, z]), torch.cat([nrm, z])
+            q[ids], nrm[ids] = _plane_rows(
+                self.positions[ids],
+                self.plane_sum[ids],
+                self.normal_sum[ids],
+                self.plane_count[ids],
+            )
+            self._plane_cache = (q, nrm)
+        self._plane_stale = []
         return self._plane_cache
 
     def _add_points(
@@ -202,8 +221,7 @@ class NeuralPointMap:
         self.plane_sum = torch.cat([self.plane_sum, z3])
         self.normal_sum = torch.cat([self.normal_sum, z3])
         self.plane_count = torch.cat([self.plane_count, z3[:, 0]])
-        self._plane_cache = None
-        self.version += 1
+        self.version += 1  # planes() adds the new rows to its cache
         self._rebuild_index()
         return torch.arange(start, start + m, device=self.device)
 
@@ -236,7 +254,7 @@ class NeuralPointMap:
         if ps.shape != (n, 3) or ns.shape != (n, 3) or pc.shape != (n,):
             raise ValueError("inconsistent surface-plane arrays")
         self.plane_sum, self.normal_sum, self.plane_count = ps, ns, pc
-        self._plane_cache = None
+        self._plane_cache, self._plane_stale = None, []
         self.version += 1
         self._rebuild_index()
 
@@ -298,6 +316,19 @@ class NeuralPointMap:
         return idw_interpolate(
             x, self.positions[ic], idx >= 0, f[ic], self.colors[ic], self.cfg.idw_power
         )
+
+
+def _plane_rows(
+    positions: torch.Tensor, plane_sum: torch.Tensor, normal_sum: torch.Tensor, count: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:meth:`NeuralPointMap.planes` of the given rows: the mean surface point (the position
+    where nothing was observed) and the unit mean normal (zero where none)."""
+    c = count.clamp(min=1.0)[:, None]
+    has = (count > 0)[:, None]
+    q = torch.where(has, plane_sum / c, positions)
+    nn_ = normal_sum.norm(dim=1, keepdim=True)
+    nrm = torch.where(has & (nn_ > 1e-6), normal_sum / nn_.clamp(min=1e-6), 0.0)
+    return q.contiguous(), nrm.contiguous()
 
 
 def idw_interpolate(

@@ -28,6 +28,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
+from simn_sim.geometry.bounds import column_bounds
 from simn_sim.geometry.se3 import transform_points
 from simn_sim.planning.collision_config import CollisionConfig
 
@@ -100,7 +101,7 @@ class CollisionChecker:
         c = self.occupied_centres()
         if len(c) == 0:
             return None
-        lo, hi = c.min(0), c.max(0)
+        lo, hi = column_bounds(c)
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
 
     def select_obstacles(self, points: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
@@ -146,7 +147,7 @@ class CollisionChecker:
         self.n_points += len(xy)
         if len(xy) == 0:
             return 0
-        self._ensure_extent(xy.min(0), xy.max(0))
+        self._ensure_extent(*column_bounds(xy))
         r = self.cfg.resolution
         ij = np.floor(xy / r).astype(np.int64) - self.cell_offset
         nx, ny = self.shape

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from simn_sim.geometry.bounds import column_bounds
 from simn_sim.geometry.se3 import inv_T, transform_points
 from simn_sim.geometry.voxel import VoxelStore
 from simn_sim.mapping.mapper import ImplicitMap
@@ -260,7 +261,8 @@ class LocalFrames:
         b = self._bounds_cache.get(fid)
         if b is None or b[0] != st.obstacles.version:
             P = st.obstacles.points.astype(np.float64)
-            c = 0.5 * (P.min(axis=0) + P.max(axis=0))
+            lo, hi = column_bounds(P)
+            c = 0.5 * (lo + hi)
             b = self._bounds_cache[fid] = (
                 st.obstacles.version,
                 c,

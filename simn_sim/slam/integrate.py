@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from simn_sim.geometry.bounds import finite_rows
 from simn_sim.geometry.se3 import inv_T, transform_points
 from simn_sim.geometry.voxel import first_per_voxel
 from simn_sim.mapping.mapper import ImplicitMap
@@ -60,7 +61,7 @@ def integrate(
     if keep is not None:
         frame = frame.select(keep)
     pts = frame.points
-    ok = np.isfinite(frame.normals).all(axis=1)
+    ok = finite_rows(frame.normals)
     if ok.any():
         P, N = pts[ok], frame.normals[ok]
         idx = first_per_voxel(P, cfg.surface_voxel, order="key")

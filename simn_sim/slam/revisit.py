@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from simn_sim.geometry.bounds import column_bounds
 from simn_sim.geometry.se3 import inv_T, transform_points
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import LocalFrames
@@ -111,7 +112,7 @@ class Revisits:
         Fq = Fq if use_features and q.has_features else None
         A = topo.anchor(fid)
         Pw = transform_points(A, Pq)
-        lo, hi = Pw[:, :2].min(axis=0), Pw[:, :2].max(axis=0)
+        lo, hi = column_bounds(Pw[:, :2])
         skip = {fid, *topo.frame_ids[-c.exclude_recent :]} if c.exclude_recent else {fid}
         out = []
         for f in topo.frame_ids:

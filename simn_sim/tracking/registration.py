@@ -34,6 +34,7 @@ from typing import Any, Literal
 import numpy as np
 
 from simn_sim.config import Config, require
+from simn_sim.geometry.bounds import finite_rows
 from simn_sim.geometry.se3 import inv_T, se3_exp
 from simn_sim.tracking.lie import adjoint, check_pose
 
@@ -163,7 +164,7 @@ class _Evaluator:
         n = len(q)
         if sdf.shape[0] != n or grad.shape[0] != n:
             raise ValueError(f"sdf_and_grad returned {sdf.shape[0]} values for {n} points")
-        valid = np.isfinite(sdf) & np.isfinite(grad).all(axis=1)
+        valid = np.isfinite(sdf) & finite_rows(grad)
         if len(out) == 3:
             valid &= _to_numpy(out[2]).astype(bool).reshape(-1)
         gn = np.linalg.norm(np.where(valid[:, None], grad, 0.0), axis=1)

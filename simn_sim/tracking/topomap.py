@@ -36,6 +36,7 @@ import networkx as nx
 import numpy as np
 
 from simn_sim.config import Config, require
+from simn_sim.geometry.bounds import column_bounds
 from simn_sim.geometry.se3 import inv_T, pose_error, rot_z, transform_points
 from simn_sim.tracking.descriptors import (
     DescriptorConfig,
@@ -86,7 +87,7 @@ class TopoMap:
         Pw = transform_points(frame.T_world_anchor, P.astype(np.float64))
         node["n_points"] = len(P)
         if len(P):
-            node["region"] = np.concatenate([Pw[:, :2].min(axis=0), Pw[:, :2].max(axis=0)])
+            node["region"] = np.concatenate(column_bounds(Pw[:, :2]))
         else:
             node["region"] = np.full(4, np.nan)
         if descriptor is not None:
