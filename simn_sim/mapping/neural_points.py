@@ -14,11 +14,16 @@ use this same neighbourhood definition (DESIGN.md section 6).
 from __future__ import annotations
 
 import dataclasses
+import threading
 
 import torch
 
 from simn_sim.mapping.config import NeuralPointsConfig
 from simn_sim.mapping.point_index import BucketIndex, TreeIndex, pack_keys
+
+# planes() updates its cache in steps (read the stale rows, recompute, publish, clear); two
+# threads interleaving those steps could publish a cache missing rows, so it runs under a lock
+_PLANES_LOCK = threading.Lock()
 
 
 @dataclasses.dataclass
@@ -147,6 +152,10 @@ class NeuralPointMap:
         """Per neural point the mean observed surface point (N, 3) and the unit mean normal
         (N, 3) of its voxel; the normal is zero for points without any normal observation (so
         their plane term vanishes), and the mean point falls back to the point's position."""
+        with _PLANES_LOCK:  # the training thread and the caller's may both ask (one at a time)
+            return self._planes()
+
+    def _planes(self) -> tuple[torch.Tensor, torch.Tensor]:
         n = len(self)
         if self._plane_cache is None:
             self._plane_cache = _plane_rows(
