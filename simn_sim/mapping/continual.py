@@ -86,9 +86,16 @@ class FrameReplay:
         self, n: int, generator: torch.Generator | None = None
     ) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
         """``n`` samples drawn uniformly with replacement: (inputs, labels)."""
+        return self.take(self.draw_ids(n, generator))
+
+    def draw_ids(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """The indices :meth:`draw` takes (the same generator draws)."""
+        return torch.randint(len(self), (n,), generator=generator, device=self.device)
+
+    def take(self, ids: torch.Tensor) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
+        """The samples at ``ids`` (from :meth:`draw_ids`): (inputs, labels)."""
         inp, s = self._concat()
-        i = torch.randint(s.shape[0], (n,), generator=generator, device=self.device)
-        return tuple(t[i] for t in inp), s[i]
+        return tuple(t[ids] for t in inp), s[ids]
 
     def nbytes(self) -> int:
         return int(sum(t.numel() * t.element_size() for inp, s in self.entries for t in (*inp, s)))
