@@ -121,6 +121,7 @@ def run(
     env = gym.make("SimnOffice-v0", config=env_cfg)
     act, env_ms, track, mapping, plan = [], [], [], [], []
     outcomes, train_wait, n_steps = [], [], 0
+    jobs = {"jobs": 0, "run_ms": 0.0, "beside_ms": 0.0, "wait_ms": 0.0}
     opened: list[bool] = []  # the step opened a local frame (closing one, revisit check)
     if timer is not None:
         timer.config = name
@@ -151,6 +152,8 @@ def run(
         if slam is not None and slam.trainer is not None:  # training on the worker thread
             train_wait.append(slam.trainer.wait_ms / max(slam.n_frames, 1))
             slam.close()
+            for k in jobs:
+                jobs[k] += getattr(slam.trainer, k)
     env.close()
     a = np.asarray(act)
     stages = None
@@ -177,6 +180,13 @@ def run(
         "env_step_ms": _stats(env_ms),
         # train_async: mean ms per step the next step waited for the worker's training
         "train_wait_ms_per_step": float(np.mean(train_wait)) if train_wait else None,
+        # per training job on the worker: its wall time, the main thread's work beside it
+        # (from its start to the next step's join) and the join's wait
+        "train_job_ms": (
+            {k: jobs[k] / jobs["jobs"] for k in ("run_ms", "beside_ms", "wait_ms")}
+            if jobs["jobs"]
+            else None
+        ),
         "terminations": outcomes,
     }
 
@@ -268,6 +278,13 @@ def main() -> int:
                 f"  steps opening a local frame: {fo['n']}, act ms mean {fo['mean']:.1f}; "
                 f"other steps: mean {ot['mean']:.1f} p95 {ot['p95']:.1f}; share of the "
                 f"slowest 5 %: {r['frame_opening_share_of_slowest_5pct']:.2f}",
+                flush=True,
+            )
+        tj = r["train_job_ms"]
+        if tj:
+            print(
+                f"  training job on the worker: {tj['run_ms']:.1f} ms; main thread's work "
+                f"beside it {tj['beside_ms']:.1f} ms; join waited {tj['wait_ms']:.1f} ms",
                 flush=True,
             )
         if r["stages_ms_per_step"]:

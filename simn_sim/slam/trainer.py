@@ -27,7 +27,10 @@ __all__ = ["TrainWorker"]
 
 class TrainWorker:
     """One training job at a time on one worker thread; :meth:`join` waits for it and runs its
-    completion callback on the caller's thread. ``wait_ms``: total time joins waited."""
+    completion callback on the caller's thread. Totals over the jobs run on the thread:
+    ``wait_ms``, the time joins waited; ``run_ms``, the jobs' wall time on the worker;
+    ``beside_ms``, the caller's time from :meth:`start` to the join (its work beside the job).
+    A job is hidden while ``run_ms <= beside_ms``; the wait is the difference."""
 
     def __init__(self, threads: int = 1, inline: bool = False) -> None:
         self.threads = int(threads)
@@ -38,6 +41,10 @@ class TrainWorker:
         self.jobs = 0
         self.wait_ms = 0.0
         self.last_wait_ms = 0.0
+        self.run_ms = 0.0
+        self.beside_ms = 0.0
+        self._t_start = 0.0
+        self._last_run_ms = 0.0
 
     def _init_thread(self) -> None:
         if self.threads > 0:
@@ -63,8 +70,16 @@ class TrainWorker:
             self._ex = ThreadPoolExecutor(
                 1, thread_name_prefix="simn-train", initializer=self._init_thread
             )
-        self._job = (self._ex.submit(fn), done)
+        self._t_start = time.perf_counter()
+        self._job = (self._ex.submit(self._timed, fn), done)
         self.jobs += 1
+
+    def _timed(self, fn: Callable[[], Any]) -> Any:
+        t = time.perf_counter()
+        try:
+            return fn()
+        finally:  # read by the caller after the future's result (which orders the two)
+            self._last_run_ms = (time.perf_counter() - t) * 1e3
 
     def join(self) -> None:
         """Wait for the running job (re-raising its exception) and run its callback; a job
@@ -78,9 +93,11 @@ class TrainWorker:
         fut, done = self._job
         self._job = None
         t = time.perf_counter()
+        self.beside_ms += (t - self._t_start) * 1e3
         res = fut.result()
         self.last_wait_ms = (time.perf_counter() - t) * 1e3
         self.wait_ms += self.last_wait_ms
+        self.run_ms += self._last_run_ms
         done(res)
 
     def close(self) -> None:
