@@ -121,7 +121,7 @@ def run(
     env = gym.make("SimnOffice-v0", config=env_cfg)
     act, env_ms, track, mapping, plan = [], [], [], [], []
     outcomes, train_wait, n_steps = [], [], 0
-    jobs = {"jobs": 0, "run_ms": 0.0, "beside_ms": 0.0, "wait_ms": 0.0}
+    jobs = {"jobs": 0, "run_ms": 0.0, "beside_ms": 0.0, "wait_ms": 0.0, "between_ms": 0.0}
     opened: list[bool] = []  # the step opened a local frame (closing one, revisit check)
     if timer is not None:
         timer.config = name
@@ -181,9 +181,10 @@ def run(
         # train_async: mean ms per step the next step waited for the worker's training
         "train_wait_ms_per_step": float(np.mean(train_wait)) if train_wait else None,
         # per training job on the worker: its wall time, the main thread's work beside it
-        # (from its start to the next step's join) and the join's wait
+        # (from its start to the next step's join), the join's wait, and the main thread's
+        # work from the join to the next job's start (the worker idle)
         "train_job_ms": (
-            {k: jobs[k] / jobs["jobs"] for k in ("run_ms", "beside_ms", "wait_ms")}
+            {k: jobs[k] / jobs["jobs"] for k in ("run_ms", "beside_ms", "wait_ms", "between_ms")}
             if jobs["jobs"]
             else None
         ),
@@ -284,7 +285,8 @@ def main() -> int:
         if tj:
             print(
                 f"  training job on the worker: {tj['run_ms']:.1f} ms; main thread's work "
-                f"beside it {tj['beside_ms']:.1f} ms; join waited {tj['wait_ms']:.1f} ms",
+                f"beside it {tj['beside_ms']:.1f} ms; join waited {tj['wait_ms']:.1f} ms; main "
+                f"thread's work from the join to the next start {tj['between_ms']:.1f} ms",
                 flush=True,
             )
         if r["stages_ms_per_step"]:

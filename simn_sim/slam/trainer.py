@@ -29,8 +29,10 @@ class TrainWorker:
     """One training job at a time on one worker thread; :meth:`join` waits for it and runs its
     completion callback on the caller's thread. Totals over the jobs run on the thread:
     ``wait_ms``, the time joins waited; ``run_ms``, the jobs' wall time on the worker;
-    ``beside_ms``, the caller's time from :meth:`start` to the join (its work beside the job).
-    A job is hidden while ``run_ms <= beside_ms``; the wait is the difference."""
+    ``beside_ms``, the caller's time from :meth:`start` to the join (its work beside the job);
+    ``between_ms``, the caller's time from a join to the next start (the worker idles). A job
+    is hidden while ``run_ms <= beside_ms``; the wait is the difference. Per job the caller's
+    cycle is ``beside_ms + wait_ms + between_ms``."""
 
     def __init__(self, threads: int = 1, inline: bool = False) -> None:
         self.threads = int(threads)
@@ -43,7 +45,9 @@ class TrainWorker:
         self.last_wait_ms = 0.0
         self.run_ms = 0.0
         self.beside_ms = 0.0
+        self.between_ms = 0.0
         self._t_start = 0.0
+        self._t_joined: float | None = None
         self._last_run_ms = 0.0
 
     def _init_thread(self) -> None:
@@ -71,6 +75,8 @@ class TrainWorker:
                 1, thread_name_prefix="simn-train", initializer=self._init_thread
             )
         self._t_start = time.perf_counter()
+        if self._t_joined is not None:
+            self.between_ms += (self._t_start - self._t_joined) * 1e3
         self._job = (self._ex.submit(self._timed, fn), done)
         self.jobs += 1
 
@@ -98,6 +104,7 @@ class TrainWorker:
         self.last_wait_ms = (time.perf_counter() - t) * 1e3
         self.wait_ms += self.last_wait_ms
         self.run_ms += self._last_run_ms
+        self._t_joined = time.perf_counter()
         done(res)
 
     def close(self) -> None:
