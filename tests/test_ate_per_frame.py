@@ -4,24 +4,16 @@ ATE that ``ate_rpe`` reports)."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from simn_sim.eval.trajectory import ate_rpe, write_tum_trajectory
 from simn_sim.geometry.se3 import make_T
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "ate_per_frame.py"
-
 
 @pytest.fixture(scope="module")
-def apf():
-    spec = importlib.util.spec_from_file_location("apf_test", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def apf(load_script):
+    return load_script("ate_per_frame")
 
 
 def _rz(a: float) -> np.ndarray:

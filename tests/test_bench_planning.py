@@ -4,10 +4,8 @@ OMPL's simplified path never longer than its raw path."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,15 +24,10 @@ from simn_sim.planning import (  # noqa: E402
 from simn_sim.planning.ompl_rrtstar import OmplRRTStar, OmplRRTStarConfig  # noqa: E402
 from simn_sim.planning.synthetic_maps import doorway_map  # noqa: E402
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_planning_synthetic.py"
-
 
 @pytest.fixture(scope="module")
-def bps():
-    spec = importlib.util.spec_from_file_location("bps_test", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def bps(load_script):
+    return load_script("bench_planning_synthetic")
 
 
 def test_run_query_fields_and_fair_lengths(bps) -> None:

@@ -97,17 +97,12 @@ def test_bad_input_is_named():
         revisit_truth([0], [], poses, tol_m=0.0)
 
 
-def test_revisit_report_pools_counts_over_episodes(tmp_path):
+def test_revisit_report_pools_counts_over_episodes(tmp_path, load_script):
     """``scripts/revisit_report.py``: precision and recall from summed counts, not a mean of
     per-episode ratios; records without the judged fields (other agents, old runs) skipped."""
-    import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "revisit_report.py"
-    spec = importlib.util.spec_from_file_location("revisit_report", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_script("revisit_report")
     base = {"agent": "simn", "seed": 0}
     recs = [
         {**base, "episode_id": "a", "revisits": 3, "revisits_correct": 2,
