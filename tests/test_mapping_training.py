@@ -116,3 +116,10 @@ def test_early_stop_leaves_the_generator_as_a_shorter_chunk_would(second_frame):
     assert rb.iterations == ra.iterations
     assert torch.equal(a.generator.get_state(), b.generator.get_state())
     assert torch.equal(a.points.features, b.points.features)
+
+
+def test_zero_iterations_is_an_error(second_frame):
+    m = copy.deepcopy(second_frame)
+    with pytest.raises(ValueError, match="max_iters must be >= 1, got 0"):
+        m.train(max_iters=0)
+    assert m.n_pending == second_frame.n_pending  # nothing consumed

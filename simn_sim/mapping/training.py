@@ -35,6 +35,8 @@ def train_chunk(
     tc = imap.cfg.training
     t0 = time.perf_counter()
     cap = tc.max_iters if max_iters is None else int(max_iters)
+    if cap < 1:
+        raise ValueError(f"train: max_iters must be >= 1, got {max_iters}")
     if imap._n_pending == 0:
         return TrainResult(0, False, float("nan"), 0, 0, 0.0), _nothing
     Xn, Sn, Kn = (torch.cat(t) for t in zip(*imap._pending, strict=True))
