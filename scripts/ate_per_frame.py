@@ -1,6 +1,6 @@
 """Per-frame position error of a TUM trajectory against ground truth, after the same Umeyama
-SE(3) alignment as the ATE (``simn_sim.eval.trajectory.ate_rpe``): where along a sequence the
-error sits.
+SE(3) alignment as the ATE (``simn_sim.eval.trajectory.ate_per_frame``): where along a sequence
+the error sits.
 
     .venv/bin/python scripts/ate_per_frame.py OUT/trajectory_online.txt SEQ/groundtruth.txt \\
         --first 12 --every 15
@@ -9,26 +9,10 @@ error sits.
 from __future__ import annotations
 
 import argparse
-import copy
 
 import numpy as np
-from evo.core import metrics, sync
 
-from simn_sim.eval.trajectory import _to_evo, read_tum_trajectory
-
-
-def per_frame_errors(est_path: str, gt_path: str, max_diff: float = 0.02) -> np.ndarray:
-    """(N,) metres: each matched frame's position error after the SE(3) alignment."""
-    gt = _to_evo(read_tum_trajectory(gt_path), "gt")
-    est = _to_evo(read_tum_trajectory(est_path), "est")
-    gt, est = sync.associate_trajectories(gt, est, max_diff=max_diff)
-    if est.num_poses < 3:
-        raise ValueError(f"only {est.num_poses} poses matched within {max_diff} s; need 3")
-    est = copy.deepcopy(est)
-    est.align(gt, correct_scale=False)
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((gt, est))
-    return np.asarray(ape.error, float)
+from simn_sim.eval.trajectory import ate_per_frame, read_tum_trajectory
 
 
 def main() -> int:
@@ -40,7 +24,7 @@ def main() -> int:
     a = ap.parse_args()
     if a.first < 0 or a.every < 1:
         ap.error("--first must be >= 0 and --every >= 1")
-    e = 100.0 * per_frame_errors(a.estimate, a.groundtruth)
+    e = 100.0 * ate_per_frame(read_tum_trajectory(a.estimate), read_tum_trajectory(a.groundtruth))
     print(f"frames {len(e)}, ATE rmse {np.sqrt(np.mean(e**2)):.2f} cm")
     print("first frames (cm):", " ".join(f"{x:.1f}" for x in e[: a.first]))
     print(f"every {a.every}th frame (cm):", " ".join(f"{x:.1f}" for x in e[:: a.every]))

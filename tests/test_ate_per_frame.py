@@ -1,5 +1,5 @@
-"""``scripts/ate_per_frame.py``: per-frame errors after the ATE's alignment, on known
-trajectories (a rigidly moved copy of the ground truth has zero error; the errors' RMS is the
+"""``ate_per_frame`` (``scripts/ate_per_frame.py``): per-frame errors after the ATE's alignment,
+on known trajectories (a rigidly moved copy of the ground truth has zero error; the errors' RMS is the
 ATE that ``ate_rpe`` reports)."""
 
 from __future__ import annotations
@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simn_sim.eval.trajectory import ate_rpe, write_tum_trajectory
+from simn_sim.eval.trajectory import (
+    ate_per_frame,
+    ate_rpe,
+    read_tum_trajectory,
+    write_tum_trajectory,
+)
 from simn_sim.geometry.se3 import make_T
-
-
-@pytest.fixture(scope="module")
-def apf(load_script):
-    return load_script("ate_per_frame")
 
 
 def _rz(a: float) -> np.ndarray:
@@ -27,16 +27,18 @@ def _gt(n: int = 40):
     return t, poses
 
 
-def test_a_rigidly_moved_copy_has_no_error(apf, tmp_path):
+def test_a_rigidly_moved_copy_has_no_error(tmp_path):
     t, gt = _gt()
     G = make_T(_rz(0.7), [3.0, -2.0, 0.5])
     write_tum_trajectory(tmp_path / "gt.txt", t, gt)
     write_tum_trajectory(tmp_path / "est.txt", t, [G @ T for T in gt])
-    e = apf.per_frame_errors(str(tmp_path / "est.txt"), str(tmp_path / "gt.txt"))
+    e = ate_per_frame(
+        read_tum_trajectory(tmp_path / "est.txt"), read_tum_trajectory(tmp_path / "gt.txt")
+    )
     assert e.shape == (len(t),) and float(e.max()) < 1e-6
 
 
-def test_errors_sit_where_the_estimate_is_off_and_match_the_ate(apf, tmp_path):
+def test_errors_sit_where_the_estimate_is_off_and_match_the_ate(tmp_path):
     t, gt = _gt()
     rng = np.random.default_rng(0)
     est = [T.copy() for T in gt]
@@ -44,7 +46,9 @@ def test_errors_sit_where_the_estimate_is_off_and_match_the_ate(apf, tmp_path):
         est[i][:3, 3] += rng.uniform(0.05, 0.1, 3) * rng.choice([-1, 1], 3)
     write_tum_trajectory(tmp_path / "gt.txt", t, gt)
     write_tum_trajectory(tmp_path / "est.txt", t, est)
-    e = apf.per_frame_errors(str(tmp_path / "est.txt"), str(tmp_path / "gt.txt"))
+    e = ate_per_frame(
+        read_tum_trajectory(tmp_path / "est.txt"), read_tum_trajectory(tmp_path / "gt.txt")
+    )
     ref = ate_rpe(list(zip(t, est, strict=True)), list(zip(t, gt, strict=True)))
     assert np.sqrt(np.mean(e**2)) == pytest.approx(ref["ate_rmse_m"], rel=1e-9)
     assert e[:5].min() > 3 * np.median(e[5:])

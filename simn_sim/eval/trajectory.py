@@ -35,23 +35,14 @@ def _to_evo(traj: StampedPoses, name: str) -> PoseTrajectory3D:
     return PoseTrajectory3D(poses_se3=poses, timestamps=stamps)
 
 
-def ate_rpe(
-    est: StampedPoses,
-    gt: StampedPoses,
-    max_diff: float = 0.02,
-    align: bool = True,
-    rpe_delta: int = 1,
-) -> dict:
-    """ATE and RPE of ``est`` against ``gt``, both lists of ``(t, T_world_cam (4, 4))``.
-
-    Returns ``dict(ate_rmse_m, ate_mean_m, ate_max_m, rpe_trans_rmse_m, rpe_rot_rmse_deg,
-    n_matched, aligned)``; ``aligned`` is True when the Umeyama SE(3) alignment was applied
-    (``align`` and at least 3 matched poses). Raises ValueError when fewer than 2 poses match.
-    """
+def _aligned_ape(
+    est: StampedPoses, gt: StampedPoses, max_diff: float, align: bool
+) -> tuple[PoseTrajectory3D, PoseTrajectory3D, metrics.APE, bool]:
+    """The associated trajectories (the estimate unaligned), the translation APE of the
+    estimate after the SE(3) alignment (when ``align`` and at least 3 poses matched) and
+    whether it was aligned."""
     if max_diff <= 0:
         raise ValueError(f"max_diff must be > 0, got {max_diff}")
-    if rpe_delta < 1:
-        raise ValueError(f"rpe_delta must be >= 1, got {rpe_delta}")
     t_gt, t_est = _to_evo(gt, "gt"), _to_evo(est, "est")
     try:
         t_gt, t_est = sync.associate_trajectories(t_gt, t_est, max_diff=max_diff)
@@ -66,6 +57,35 @@ def ate_rpe(
         t_est_al.align(t_gt, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((t_gt, t_est_al))
+    return t_gt, t_est, ape, aligned
+
+
+def ate_per_frame(
+    est: StampedPoses, gt: StampedPoses, max_diff: float = 0.02, align: bool = True
+) -> np.ndarray:
+    """(N,) metres: each matched pose's translation error after the ATE's alignment (the
+    errors whose RMS is :func:`ate_rpe`'s ``ate_rmse_m``): where along a trajectory the error
+    sits."""
+    return np.asarray(_aligned_ape(est, gt, max_diff, align)[2].error, dtype=np.float64)
+
+
+def ate_rpe(
+    est: StampedPoses,
+    gt: StampedPoses,
+    max_diff: float = 0.02,
+    align: bool = True,
+    rpe_delta: int = 1,
+) -> dict:
+    """ATE and RPE of ``est`` against ``gt``, both lists of ``(t, T_world_cam (4, 4))``.
+
+    Returns ``dict(ate_rmse_m, ate_mean_m, ate_max_m, rpe_trans_rmse_m, rpe_rot_rmse_deg,
+    n_matched, aligned)``; ``aligned`` is True when the Umeyama SE(3) alignment was applied
+    (``align`` and at least 3 matched poses). Raises ValueError when fewer than 2 poses match.
+    """
+    if rpe_delta < 1:
+        raise ValueError(f"rpe_delta must be >= 1, got {rpe_delta}")
+    t_gt, t_est, ape, aligned = _aligned_ape(est, gt, max_diff, align)
+    n = t_est.num_poses
     out = {
         "ate_rmse_m": float(ape.get_statistic(metrics.StatisticsType.rmse)),
         "ate_mean_m": float(ape.get_statistic(metrics.StatisticsType.mean)),
