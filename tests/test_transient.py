@@ -315,3 +315,116 @@ def test_the_static_model_leaves_out_appeared_slabs():
     om2.add(pts)
     at2 = np.array([[other[0] - 0.05, 1.2]])
     assert not om2.safety.is_free(at2)[0] and not om2.static_safety.is_free(at2)[0]
+
+
+def _frames_with(points: np.ndarray):
+    """Real local frames (point-store kind) with one frame anchored at the world origin whose
+    obstacle store holds ``points`` (world = anchor coordinates), stored as one view."""
+    from simn_sim.perception.frame import Frame
+    from simn_sim.semantics import OBSTACLE
+    from simn_sim.slam.config import SlamConfig
+    from simn_sim.slam.frames import LocalFrames
+
+    frames = LocalFrames(SlamConfig(map_kind="points"))
+    frames.open(np.eye(4), 0.0)
+    n = len(points)
+    view = Frame(
+        points=points.astype(np.float32),
+        normals=None,
+        map_normals=None,
+        colors=np.full((n, 3), 0.5, np.float32),
+        pixels=np.zeros((n, 2), np.int64),
+        depth=np.zeros((1, 1), np.float32),
+        valid=np.zeros((1, 1), bool),
+        stride=1,
+        intrinsics=INTR,
+        labels=np.full(n, OBSTACLE, np.int8),
+    )
+    frames.store(frames.current, view, np.eye(4))
+    return frames
+
+
+def _move_anchor(frames, dy: float) -> None:
+    """What a pose-graph run does to frame 0: its anchor (and its points) move by ``dy``."""
+    frames.topo.anchor(0)[1, 3] += dy
+    frames.anchors_version += 1
+
+
+# a person-sized box off the 0.1 m cell boundaries (the stores keep float32 points)
+OFF_GRID = (1.93, 2.33, -0.17, 0.17, 1.7)
+
+
+@pytest.mark.parametrize("follow", [True, False])
+def test_an_appeared_obstacle_expires_after_the_pose_graph_moves_its_frame(follow):
+    """The box appears in space seen free and is stored in a local frame; the pose graph then
+    moves the frame's anchor 0.15 m sideways, carrying the points into slabs that never saw
+    points arrive. Turned away for ``keep_views`` + 1 views, the models drop every one of them
+    when each point is judged where it was observed (``follow_points``); judged where they are
+    now, the points that moved into the never-occupied slabs stay for good (dyn-L5-000's
+    standstill)."""
+    from simn_sim.world.obstacles import ObstacleMap
+
+    keep = 5
+    om = ObstacleMap(
+        ObstacleConfig.from_dict({"transient": {"keep_views": keep, "follow_points": follow}})
+    )
+    tc = om.transient
+    T = _T_wc(0.0)
+    tc.observe(np.zeros((0, 3)), T, np.zeros(2), _depth(T, False, box_xy=OFF_GRID), INTR)
+    face = _box_face(OFF_GRID)
+    tc.observe(face, T, np.zeros(2), _depth(T, True, box_xy=OFF_GRID), INTR)
+    assert tc.appeared_at(face).all()
+    frames = _frames_with(face)
+    np.testing.assert_allclose(frames.obstacle_points_observed(), frames.obstacle_points_world())
+    _move_anchor(frames, 0.15)
+    moved = frames.obstacle_points_world()
+    np.testing.assert_allclose(moved[:, 1] - frames.obstacle_points_observed()[:, 1], 0.15)
+    om.rebuild(frames)
+    assert len(om.model_points(frames)) == len(moved)  # not expired yet
+    for _ in range(keep + 1):
+        Tb = _T_wc(np.pi)
+        tc.observe(np.zeros((0, 3)), Tb, np.zeros(2), _depth(Tb, True, box_xy=OFF_GRID), INTR)
+    left = om.model_points(frames)
+    if follow:
+        assert len(left) == 0
+        om.rebuild(frames)
+        assert om.safety.is_free(moved[:, :2]).all()
+    else:
+        # the face (y -0.17 to 0.17) occupied the cells from y -0.2 to 0.2; moved to y -0.02
+        # to 0.32, the points from y 0.2 on are in cells that never saw a point arrive
+        assert len(left) > 0 and (left[:, 1] >= 0.2).all()
+        assert (moved[:, 1] >= 0.2).sum() == len(left)
+
+
+def test_a_static_obstacle_stays_after_the_pose_graph_moves_its_frame():
+    """A box seen from the first view (nothing seen free there before) never appears, so it
+    stays in the models after its frame's anchor moves, judged where it was observed."""
+    from simn_sim.world.obstacles import ObstacleMap
+
+    om = ObstacleMap(
+        ObstacleConfig.from_dict({"transient": {"keep_views": 5, "follow_points": True}})
+    )
+    T = _T_wc(0.0)
+    face = _box_face(OFF_GRID)
+    om.transient.observe(face, T, np.zeros(2), _depth(T, True, box_xy=OFF_GRID), INTR)
+    frames = _frames_with(face)
+    _move_anchor(frames, 0.15)
+    for _ in range(8):
+        Tb = _T_wc(np.pi)
+        om.transient.observe(np.zeros((0, 3)), Tb, np.zeros(2), _depth(Tb, True, box_xy=OFF_GRID), INTR)
+    om.rebuild(frames)
+    assert len(om.model_points(frames)) == len(frames.obstacle_points_world())  # all stay
+    assert not om.safety.is_free(frames.obstacle_points_world()[:, :2]).any()
+
+
+def test_a_frames_first_view_is_restamped_where_its_moved_anchor_puts_it():
+    """A revisit that moves a new frame's anchor right after its first view was stored: that
+    view was seen from the moved anchor (the pipeline recomputes the camera pose through it),
+    so its points are recorded as observed there."""
+    frames = _frames_with(_box_face(OFF_GRID))
+    _move_anchor(frames, -0.2)
+    before = frames.obstacle_points_observed().copy()
+    frames.restamp_observed(0)
+    after = frames.obstacle_points_observed()
+    np.testing.assert_allclose(after, frames.obstacle_points_world())
+    np.testing.assert_allclose(before[:, 1] - after[:, 1], 0.2, atol=1e-6)

@@ -111,6 +111,7 @@ class LocalFrames:
         self.n_carved = 0  # obstacle points removed by carving, in all
         self._base_map: ImplicitMap | None = None
         self._obst_cache: tuple[tuple, np.ndarray] | None = None
+        self._observed_cache: tuple[tuple, np.ndarray] | None = None
         # per frame: (version, points, labels) of the last debug() (recorders ask every step)
         self._debug_cache: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
         self._floor_cache: tuple[tuple, np.ndarray] | None = None
@@ -154,7 +155,8 @@ class LocalFrames:
         frame = LocalFrame(fid, T_world_cam.copy(), self._new_map(surface), t_start=t, t_end=t)
         self.states[fid] = FrameState(
             frame,
-            VoxelStore(c.stores.obstacle_voxel),
+            # extras: each point where it was observed (world, through the anchor of then)
+            VoxelStore(c.stores.obstacle_voxel, extra_dim=3),
             VoxelStore(c.stores.floor_voxel),
             frame.map if isinstance(frame.map, PointFrameMap) else self.point_map(surface),
         )
@@ -204,8 +206,18 @@ class LocalFrames:
         if len(frame) == 0 or frame.labels is None:
             return
         Pa = transform_points(T_anchor_cam, frame.points.astype(np.float64)).astype(np.float32)
-        st.obstacles.add(Pa[frame.labels == OBSTACLE])
+        Po = Pa[frame.labels == OBSTACLE]
+        T_wa = self.topo.anchor(st.frame.frame_id)
+        st.obstacles.add(Po, transform_points(T_wa, Po.astype(np.float64)).astype(np.float32))
         st.floor.add(Pa[frame.labels == FLOOR])
+
+    def restamp_observed(self, fid: int) -> None:
+        """Frame ``fid``'s obstacle points observed where its current anchor puts them: for a
+        frame whose anchor a revisit moved right after its first (and only) view was stored."""
+        st = self.states[fid]
+        P = st.obstacles.points.astype(np.float64)
+        st.obstacles.extra = transform_points(self.topo.anchor(fid), P).astype(np.float32)
+        st.obstacles.version += 1
 
     def carve(self, frame: Frame, T_world_cam: np.ndarray) -> int:
         """Remove stored obstacle points of the recent frames (``stores.carve_frames``; 0: every
@@ -295,6 +307,25 @@ class LocalFrames:
         voxel per frame)."""
         self._obst_cache = self._world_points("obstacles", self._obst_cache, min_frame)
         return self._obst_cache[1]
+
+    def obstacle_points_observed(self, min_frame: int = 0) -> np.ndarray:
+        """(N, 3) float32: the points of :meth:`obstacle_points_world` (same order) where they
+        were observed, in the world through the anchors of the view that stored them (what
+        :class:`~simn_sim.world.transient.TransientCells` saw; the pose graph moves anchors
+        later, and the points with them, but not the views' records)."""
+        key = (
+            min_frame,
+            *((f, s.obstacles.version) for f, s in self.states.items() if f >= min_frame),
+        )
+        if self._observed_cache is None or self._observed_cache[0] != key:
+            parts = [
+                s.obstacles.extra
+                for f, s in self.states.items()
+                if f >= min_frame and len(s.obstacles)
+            ]
+            pts = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
+            self._observed_cache = (key, pts)
+        return self._observed_cache[1]
 
     def floor_points_world(self) -> np.ndarray:
         """(N, 3) float32 FLOOR points of all local frames (world)."""

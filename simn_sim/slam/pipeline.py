@@ -299,6 +299,8 @@ class SimnSlam:
             revisit_fid = self.revisits.on_open(frames.current_id, track_pts, T_world_cam)
             if self._graph_moved() or revisit_fid is not None:
                 T_world_cam = frames.topo.anchor(frames.current_id) @ T_anchor_cam
+                # the view is seen from the moved anchor: its stored points were observed there
+                frames.restamp_observed(frames.current_id)
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
         st.frame.t_end = t

@@ -106,15 +106,18 @@ class ObstacleMap:
         self.clears = 0
 
     # ---- obstacles ---------------------------------------------------------------------------
-    def add(self, points: np.ndarray) -> None:
+    def add(self, points: np.ndarray, appeared: np.ndarray | None = None) -> None:
         """Add (N, 3) obstacle points (agent frame) to the planning and safety models (and to
-        the static model those outside appeared transient slabs)."""
+        the static model those outside appeared transient slabs; ``appeared``: (N,) bool, which
+        are in one, when not the slabs at ``points``)."""
         if len(points):
             lab = np.full(len(points), OBSTACLE, np.int8)
             self.planning.update(points, lab)
             self.safety.update(points, lab)
             if self.static_safety is not None:
-                keep = ~self.transient.appeared_at(points)
+                if appeared is None:
+                    appeared = self.transient.appeared_at(points)
+                keep = ~appeared
                 self.static_safety.update(points[keep], lab[keep])
 
     def keep_static(self) -> None:
@@ -130,10 +133,28 @@ class ObstacleMap:
         """(N, 3) the points the models are built from: the obstacle points of the local frames
         from ``min_frame`` on (world coordinates) but those in expired transient cells, plus
         the bump points."""
+        return self._model_points(frames)[0]
+
+    def _model_points(self, frames: LocalFrames) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`model_points` and which of them lie in appeared transient slabs (None: judge
+        them where they are). With ``transient.follow_points`` a stored point is judged in the
+        slab it was observed in (:meth:`LocalFrames.obstacle_points_observed`), not the one
+        its frame's current anchor puts it in."""
         pts = frames.obstacle_points_world(self.min_frame)
+        appeared = None
         if self.transient is not None:
-            pts = pts[~self.transient.expired(pts)]
-        return np.concatenate([pts, *self.bump_points]) if self.bump_points else pts
+            tc = self.transient
+            at = frames.obstacle_points_observed(self.min_frame) if tc.cfg.follow_points else pts
+            keep = ~tc.expired(at)
+            pts = pts[keep]
+            if tc.cfg.follow_points:
+                appeared = tc.appeared_at(at[keep])
+        if self.bump_points:
+            bumps = np.concatenate(self.bump_points)
+            pts = np.concatenate([pts, bumps])
+            if appeared is not None:
+                appeared = np.concatenate([appeared, tc.appeared_at(bumps)])
+        return pts, appeared
 
     def rebuild(self, frames: LocalFrames) -> None:
         """Both models anew from :meth:`model_points` (bumps older than ``bump_ttl`` views
@@ -147,7 +168,7 @@ class ObstacleMap:
         self.safety.reset()
         if self.static_safety is not None:
             self.static_safety.reset()
-        self.add(self.model_points(frames))
+        self.add(*self._model_points(frames))
 
     def forget(self, min_frame: int) -> None:
         """Clear the map, as a recovery (the clear-costmap recovery of ROS navigation): from the
