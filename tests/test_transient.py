@@ -411,7 +411,9 @@ def test_a_static_obstacle_stays_after_the_pose_graph_moves_its_frame():
     _move_anchor(frames, 0.15)
     for _ in range(8):
         Tb = _T_wc(np.pi)
-        om.transient.observe(np.zeros((0, 3)), Tb, np.zeros(2), _depth(Tb, True, box_xy=OFF_GRID), INTR)
+        om.transient.observe(
+            np.zeros((0, 3)), Tb, np.zeros(2), _depth(Tb, True, box_xy=OFF_GRID), INTR
+        )
     om.rebuild(frames)
     assert len(om.model_points(frames)) == len(frames.obstacle_points_world())  # all stay
     assert not om.safety.is_free(frames.obstacle_points_world()[:, :2]).any()
