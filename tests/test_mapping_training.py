@@ -123,3 +123,35 @@ def test_zero_iterations_is_an_error(second_frame):
     with pytest.raises(ValueError, match="max_iters must be >= 1, got 0"):
         m.train(max_iters=0)
     assert m.n_pending == second_frame.n_pending  # nothing consumed
+
+
+@pytest.mark.parametrize("prepare_all", [False, True])
+def test_every_batch_sample_decodes_with_its_own_nearest_neural_points(second_frame, prepare_all):
+    """The neighbour tables a chunk gathers belong to the samples they are used with: for every
+    sample of every batch (new and replayed), the neural points its decoder inputs carry are
+    its k nearest within ``search_radius``, nearest first, by brute force over all neural
+    points. (The outcome checks above would pass with the tables shifted by one sample:
+    consecutive samples lie close together.)"""
+    m = copy.deepcopy(second_frame)
+    seen: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+    inner = m._decoder_inputs
+
+    def capture(x, nb_pos, nbv, *rest):
+        seen.append((x.detach().clone(), nb_pos.detach().clone(), nbv.clone()))
+        return inner(x, nb_pos, nbv, *rest)
+
+    m._decoder_inputs = capture
+    with flush_denormals():
+        res, _ = train_chunk(m, 3, prepare_all=prepare_all)
+    assert res.iterations == 3 and len(seen) == 3
+    k, r = m.cfg.points.k_neighbors, m.cfg.points.search_radius
+    P = m.points.positions
+    for x, nb_pos, nbv in seen:
+        d2 = torch.cdist(x.double(), P.double()).pow(2)
+        d2s, order = torch.sort(d2, dim=1)
+        want = (d2s[:, :k] <= r * r).cpu()
+        assert torch.equal(nbv.cpu(), want)
+        rows, cols = torch.nonzero(want, as_tuple=True)
+        np.testing.assert_array_equal(
+            nb_pos[rows, cols].cpu().numpy(), P[order[rows, cols]].cpu().numpy()
+        )
