@@ -147,7 +147,7 @@ class ObstacleMap:
             at = frames.obstacle_points_observed(self.min_frame) if tc.cfg.follow_points else pts
             keep = ~tc.expired(at)
             pts = pts[keep]
-            if tc.cfg.follow_points:
+            if tc.cfg.follow_points and self.static_safety is not None:
                 appeared = tc.appeared_at(at[keep])
         if self.bump_points:
             bumps = np.concatenate(self.bump_points)
