@@ -79,13 +79,14 @@ class TransientConfig(Config):
     front-end leaves the points that fall in appeared slabs (at the predicted pose) out of
     registration (tracking and revisit checks) and out of the maps it registers against (the
     surface store and the learned map); the obstacle stores keep them (see
-    :meth:`~simn_sim.slam.pipeline.SimnSlam.process`, ``dynamic``). follow_points: the
-    models judge each stored point by the slab it was observed in (the world through the
-    anchors of that view), not the slab its frame's current anchor puts it in: when the pose
-    graph moves an anchor, the frame's points move into slabs whose records never saw them
-    arrive, and a person's points there never expire (dyn-L5-000: an anchor move of 0.11 m
-    carried 48 of a person's points near the goal into such slabs, and the robot stood 0.47 m
-    from the goal, its plan ending short of it, for 100 steps)."""
+    :meth:`~simn_sim.slam.pipeline.SimnSlam.process`, ``dynamic``). follow_points (on by
+    default since 2026-12-07; off: the slab each point is in now): the models judge each
+    stored point by the slab it was observed in (the world through the anchors of that view),
+    not the slab its frame's current anchor puts it in: when the pose graph moves an anchor,
+    the frame's points move into slabs whose records never saw them arrive, and a person's
+    points there never expire (dyn-L5-000: an anchor move of 0.11 m carried 48 of a person's
+    points near the goal into such slabs, and the robot stood 0.47 m from the goal, its plan
+    ending short of it, for 100 steps)."""
 
     keep_views: int = 0
     window: int = 100
@@ -100,7 +101,7 @@ class TransientConfig(Config):
     point_min: int = 3
     point_deg: float = 0.5
     mask_tracking: bool = False
-    follow_points: bool = False
+    follow_points: bool = True
 
     def validate(self) -> None:
         n = type(self).__name__
