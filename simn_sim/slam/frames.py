@@ -284,17 +284,22 @@ class LocalFrames:
 
     # ---- outputs -----------------------------------------------------------------------------
     def _world_points(
-        self, which: str, cache: tuple | None, min_frame: int = 0
+        self, which: str, cache: tuple | None, min_frame: int = 0, observed: bool = False
     ) -> tuple[tuple, np.ndarray]:
+        """``(key, points)``: store ``which`` of the frames with id >= ``min_frame``, stacked in
+        frame order, through the current anchors; ``observed``: the stores' extras instead
+        (where each point was observed, which anchor moves do not change)."""
         key = (
-            self.anchors_version,
+            None if observed else self.anchors_version,
             min_frame,
             *((f, getattr(s, which).version) for f, s in self.states.items() if f >= min_frame),
         )
         if cache is not None and cache[0] == key:
             return cache
         parts = [
-            transform_points(self.topo.anchor(f), getattr(s, which).points.astype(np.float64))
+            getattr(s, which).extra
+            if observed
+            else transform_points(self.topo.anchor(f), getattr(s, which).points.astype(np.float64))
             for f, s in self.states.items()
             if f >= min_frame and len(getattr(s, which))
         ]
@@ -313,18 +318,9 @@ class LocalFrames:
         were observed, in the world through the anchors of the view that stored them (what
         :class:`~simn_sim.world.transient.TransientCells` saw; the pose graph moves anchors
         later, and the points with them, but not the views' records)."""
-        key = (
-            min_frame,
-            *((f, s.obstacles.version) for f, s in self.states.items() if f >= min_frame),
+        self._observed_cache = self._world_points(
+            "obstacles", self._observed_cache, min_frame, observed=True
         )
-        if self._observed_cache is None or self._observed_cache[0] != key:
-            parts = [
-                s.obstacles.extra
-                for f, s in self.states.items()
-                if f >= min_frame and len(s.obstacles)
-            ]
-            pts = np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
-            self._observed_cache = (key, pts)
         return self._observed_cache[1]
 
     def floor_points_world(self) -> np.ndarray:
