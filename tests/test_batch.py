@@ -427,3 +427,20 @@ def test_batch_config_is_frozen_and_checked(tmp_path: Path) -> None:
         BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, seed="3")  # type: ignore[arg-type]
     with pytest.raises(BatchError, match="backend"):
         BatchConfig(out=tmp_path, agent="oracle", n_episodes=1, backend="slurm")
+
+
+def test_cpu_model_names_family_model_stepping_and_vector_extensions():
+    """Two CPUs sold under one model name ("AMD EPYC") round differently, so the record tells
+    them apart by family / model / stepping, read from the cpuinfo text given."""
+    from simn_sim.experiments.batch_files import cpu_model
+
+    text = (
+        "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 26\nmodel\t\t: 2\n"
+        "model name\t: AMD EPYC\nstepping\t: 1\nflags\t\t: fpu sse avx avx2 fma avx512f\n"
+        "processor\t: 1\ncpu family\t: 26\nmodel\t\t: 2\nmodel name\t: AMD EPYC\n"
+    )
+    assert cpu_model(text) == "AMD EPYC (family 26, model 2, stepping 1) [avx avx2 fma avx512f]"
+    zen4 = text.replace("cpu family\t: 26\nmodel\t\t: 2", "cpu family\t: 25\nmodel\t\t: 17", 1)
+    assert cpu_model(zen4) != cpu_model(text) and "family 25, model 17" in cpu_model(zen4)
+    # no identity fields, no flags: the name alone, said to have no AVX
+    assert cpu_model("model name\t: Some CPU\n") == "Some CPU [no avx]"

@@ -208,18 +208,27 @@ def dependency_versions() -> dict[str, str | None]:
     return out
 
 
-def cpu_model() -> str | None:
-    """The CPU's model name and its vector extensions that change which kernels numpy, torch
-    and OpenBLAS run (Linux: ``/proc/cpuinfo``; else ``platform.processor()`` or None)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return platform.processor() or None
-    name = re.search(r"^model name\s*:\s*(.+)$", text, re.M)
-    flags = re.search(r"^flags\s*:\s*(.+)$", text, re.M)
-    have = set(flags.group(1).split()) if flags else set()
+def cpu_model(cpuinfo: str | None = None) -> str | None:
+    """The CPU's model name, its family / model / stepping (one "AMD EPYC" name covers several
+    microarchitectures whose kernels round differently) and the vector extensions that change
+    which kernels numpy, torch and OpenBLAS run. ``cpuinfo``: the text of ``/proc/cpuinfo``
+    (read on Linux when None; elsewhere ``platform.processor()`` or None)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return platform.processor() or None
+
+    def field(key: str) -> str | None:
+        m = re.search(rf"^{key}\s*:\s*(.+)$", cpuinfo, re.M)
+        return m.group(1).strip() if m else None
+
+    name, flags = field("model name"), field("flags")
+    have = set(flags.split()) if flags else set()
     ext = [f for f in ("avx", "avx2", "fma", "avx512f", "avx512_vnni", "amx_tile") if f in have]
-    return f"{name.group(1).strip() if name else 'unknown'} [{' '.join(ext) or 'no avx'}]"
+    ids = [(k, field(k)) for k in ("cpu family", "model", "stepping")]
+    fms = ", ".join(f"{k.split()[-1]} {v}" for k, v in ids if v is not None)
+    return f"{name or 'unknown'}{f' ({fms})' if fms else ''} [{' '.join(ext) or 'no avx'}]"
 
 
 def _git(*args: str) -> str:
