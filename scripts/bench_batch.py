@@ -34,13 +34,9 @@ ENV_ID = "SimnOfficeFast-v0"
 
 
 def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+    from simn_sim.experiments.batch_files import cpu_model
+
+    return cpu_model() or "unknown"
 
 
 def run_one(

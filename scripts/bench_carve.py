@@ -18,7 +18,6 @@ import argparse
 import copy
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import numpy as np  # noqa: E402
 import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.paths import envs_dir  # noqa: E402
 
 
@@ -61,7 +61,7 @@ def main() -> None:
         "steps": args.steps,
         "frames": len(base),
         "obstacle_points": int(sum(len(s.obstacles) for s in base.states.values())),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "machine": machine_summary(),
     }
     for n in (2, 0):
         ms, removed = [], None

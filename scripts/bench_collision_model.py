@@ -44,6 +44,7 @@ import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
 from simn_sim.eval.occupancy import cells_of, occupancy_scores  # noqa: E402
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.geometry.se3 import inv_T, transform_points  # noqa: E402
 from simn_sim.mapping.mapper import ImplicitMap  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
@@ -241,7 +242,7 @@ def main() -> int:
     static = [r for r in results if "Dynamic" not in r["env_id"]]
     dynamic = [r for r in results if "Dynamic" in r["env_id"]]
     report = {
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}",
+        "machine": f"{machine_summary()}, Python {platform.python_version()}",
         "args": {k: str(v) for k, v in vars(args).items()},
         "resolution": RES,
         "z_band": Z_BAND,

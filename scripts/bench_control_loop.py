@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -42,6 +41,7 @@ import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.config import ConfigError, json_object  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.paths import envs_dir  # noqa: E402
 from simn_sim.slam.config import SlamConfig  # noqa: E402
 
@@ -256,7 +256,7 @@ def main() -> int:
         env_cfg.update(odom_noise_trans=a.odom_noise, odom_noise_rot=a.odom_noise)
     period = 1000.0 / 10.0
     res = {
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "machine": machine_summary(),
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "load_avg_start": os.getloadavg(),
         "env": env_cfg,

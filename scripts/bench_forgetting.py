@@ -20,13 +20,13 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import platform
 import sys
 import time
 
 import numpy as np
 import torch
 
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.slam.forgetting import VARIANTS, ForgettingSetup, base_config, measure_forgetting
 
 
@@ -127,8 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         doc = {
             "command": "scripts/bench_forgetting.py " + " ".join(argv or sys.argv[1:]),
             "date": datetime.date.today().isoformat(),
-            "machine": f"{platform.machine()}, {platform.processor() or '?'}, "
-            f"{torch.get_num_threads()} torch thread(s)",
+            "machine": f"{machine_summary()}, {torch.get_num_threads()} torch thread(s)",
             "preset": a.preset,
             "seeds": a.seeds,
             "summary": summary,

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import threading
 import time
 from collections import defaultdict
@@ -50,6 +49,7 @@ import simn_sim.perception.frame as perc_mod  # noqa: E402
 import simn_sim.slam.track as track_mod  # noqa: E402
 import simn_sim.tracking.pointsdf as psdf_mod  # noqa: E402
 from simn_sim.eval.trajectory import ate_rpe  # noqa: E402
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.io.tum import read_tum  # noqa: E402
 from simn_sim.slam import SimnSlam, SlamConfig  # noqa: E402
 from simn_sim.slam.record import read_base, read_odometry, record_sequence  # noqa: E402
@@ -208,7 +208,7 @@ def main() -> int:
     res = {
         "sequence": str(seq_dir),
         "frames": n_frames,
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        "machine": machine_summary(),
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "load_avg_start": load0,
         "load_avg_end": os.getloadavg(),

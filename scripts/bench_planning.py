@@ -53,6 +53,7 @@ import numpy as np
 import simn_sim  # noqa: F401
 from simn_sim.agents import make_agent
 from simn_sim.env.episodes import EpisodeSet
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.geometry.camera import Intrinsics, backproject
 from simn_sim.geometry.freespace import FreeSpace2D
 from simn_sim.geometry.se3 import transform_points
@@ -244,7 +245,7 @@ def main() -> None:
             plans=len(cl),
         )
     out = {
-        "machine": f"{platform.machine()} {os.cpu_count()} cpus, {platform.platform()}",
+        "machine": f"{machine_summary()}, {platform.platform()}",
         "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
         "command": "python " + " ".join(sys.argv),
         "load_average_at_start": load0,

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -42,6 +41,7 @@ import torch  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 from simn_sim.eval.trajectory import ate_rpe  # noqa: E402
+from simn_sim.experiments.batch_files import machine_summary
 from simn_sim.geometry.se3 import transform_points  # noqa: E402
 from simn_sim.io.tum import read_tum  # noqa: E402
 from simn_sim.slam import SimnSlam  # noqa: E402
@@ -190,7 +190,7 @@ def main() -> None:
         ap.error("give loop folders or --record DIR")
     results: dict = {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}",
+        "machine": f"{machine_summary()}, load {os.getloadavg()[0]:.1f}",
         "gt_radius_m": args.gt_radius,
         "gt_overlap": args.gt_overlap,
         "config": None if args.config is None else args.config.read_text(),

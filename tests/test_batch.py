@@ -444,3 +444,14 @@ def test_cpu_model_names_family_model_stepping_and_vector_extensions():
     assert cpu_model(zen4) != cpu_model(text) and "family 25, model 17" in cpu_model(zen4)
     # no identity fields, no flags: the name alone, said to have no AVX
     assert cpu_model("model name\t: Some CPU\n") == "Some CPU [no avx]"
+
+
+def test_machine_summary_names_this_cpu_its_logical_cpus_and_architecture():
+    import os
+    import platform
+
+    from simn_sim.experiments.batch_files import cpu_model, machine_summary
+
+    line = machine_summary()
+    assert line.startswith(cpu_model() or "unknown CPU")
+    assert f", {os.cpu_count()} logical CPUs, {platform.machine()}" in line

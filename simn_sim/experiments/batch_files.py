@@ -231,6 +231,12 @@ def cpu_model(cpuinfo: str | None = None) -> str | None:
     return f"{name or 'unknown'}{f' ({fms})' if fms else ''} [{' '.join(ext) or 'no avx'}]"
 
 
+def machine_summary() -> str:
+    """One line naming the machine a benchmark ran on: :func:`cpu_model`, the logical CPUs and
+    the architecture (timings compare only within one such machine)."""
+    return f"{cpu_model() or 'unknown CPU'}, {os.cpu_count()} logical CPUs, {platform.machine()}"
+
+
 def _git(*args: str) -> str:
     root = Path(__file__).resolve().parents[2]
     cmd = ["git", "-C", str(root), *args]
