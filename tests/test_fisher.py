@@ -73,3 +73,25 @@ def test_a_layer_used_twice_falls_back_to_the_vmap_fisher():
     got = diagonal_fisher(mod, (x,), y, loss, method="outer")
     for name in ref:
         torch.testing.assert_close(got[name], ref[name])
+
+
+def test_bench_fisher_times_both_methods_on_the_agent_decoder_and_they_agree(tmp_path):
+    """scripts/bench_fisher.py: both methods timed in one run on the agent preset's decoder,
+    and the two Fishers agree there (the equality the outer-product default rests on)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_fisher.py"
+    spec = importlib.util.spec_from_file_location("bench_fisher", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "fisher.json"
+    assert mod.main(["--samples", "96", "--repeats", "2", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["samples"] == 96 and set(doc["median_ms"]) == {"vmap", "outer"}
+    assert all(len(v) == 2 and 0 < v[0] <= v[1] for v in doc["range_ms"].values())
+    assert doc["max_rel_difference"] < 1e-4
+    assert doc["ratio_vmap_over_outer"] == doc["median_ms"]["vmap"] / doc["median_ms"]["outer"]
+    with pytest.raises(SystemExit):
+        mod.main(["--repeats", "0"])
