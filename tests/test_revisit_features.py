@@ -153,21 +153,3 @@ def test_revisit_rankings_on_a_synthetic_loop() -> None:
     assert res["learned"][0] > res["keypoints"][0], res  # the features' own part
     assert res["learned"][0] >= res["geometric"][0] - 0.1, res
     assert slam.n_revisits >= 3  # the check (registration) accepts revisits on this loop
-
-
-def test_order_candidates_by_score_and_oldest_first_among_the_near_best():
-    from simn_sim.config import ConfigError
-    from simn_sim.slam.revisit import order_candidates
-    from simn_sim.tracking.topomap import LoopClosureConfig
-
-    # frames 8 and 9 (just past exclude_recent in a turn in place) outscore frame 0
-    scored = [(0, 0.50), (9, 0.60), (8, 0.58), (4, 0.30), (2, 0.55)]
-    assert order_candidates(scored) == [(9, 0.60), (8, 0.58), (2, 0.55), (0, 0.50), (4, 0.30)]
-    assert order_candidates(scored, 0.0) == order_candidates(scored)
-    # within 0.8 of the best (>= 0.48): 0, 2, 8, 9 by age, then the rest by score
-    assert order_candidates(scored, 0.8) == [(0, 0.50), (2, 0.55), (8, 0.58), (9, 0.60), (4, 0.30)]
-    # within 0.95 (>= 0.57): only 8 and 9 are near the best
-    assert order_candidates(scored, 0.95)[:2] == [(8, 0.58), (9, 0.60)]
-    assert order_candidates([], 0.8) == []
-    with pytest.raises(ConfigError, match="older_first"):
-        LoopClosureConfig(older_first=1.5)

@@ -37,18 +37,6 @@ RANKINGS = ("learned", "keypoints", "geometric")
 Ranked = list[tuple[int, float]]  # (frame, score) candidates, best first
 
 
-def order_candidates(scored: Ranked, older_first: float = 0.0) -> Ranked:
-    """``(frame, score)`` candidates in the order they are checked: best score first; with
-    ``older_first`` > 0, those scoring at least ``older_first`` x the best come first, oldest
-    frame (lowest id) first, then the rest by score (``LoopClosureConfig.older_first``)."""
-    out = sorted(scored, key=lambda x: -x[1])
-    if older_first <= 0 or not out:
-        return out
-    bar = older_first * out[0][1]
-    near = sorted((c for c in out if c[1] >= bar), key=lambda x: x[0])
-    return near + [c for c in out if c[1] < bar]
-
-
 class RevisitError(RuntimeError):
     """A revisit check could not be carried out (e.g. a candidate without a map)."""
 
@@ -141,7 +129,8 @@ class Revisits:
             score, reach = idx.match(transform_points(T, Pq), Fq, dc)
             if reach >= c.min_reach and (Fq is None or score >= c.min_match):
                 out.append((int(f), score))
-        return order_candidates(out, c.older_first)[: c.top]
+        out.sort(key=lambda x: -x[1])
+        return out[: c.top]
 
     def candidates(
         self, fid: int, pts: np.ndarray, T_world_cam: np.ndarray, ranking: str | None = None

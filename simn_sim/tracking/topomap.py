@@ -248,11 +248,6 @@ class LoopClosureConfig(Config):
     # score >= 0.21; docs/slam.md, "Revisit candidates")
     min_reach: float = 0.3
     min_match: float = 0.2
-    # key-point rankings: the candidates scoring at least this fraction of the best one are
-    # checked oldest frame first (a revisit of an older frame closes a longer loop, so it can
-    # correct more drift; by score alone, the frames just past exclude_recent win a turn in
-    # place). 0: by score alone
-    older_first: float = 0.0
     max_correction_m: float = 1.0  # drift budget: registration may move the guess this far...
     max_correction_deg: float = 30.0  # ... and turn it this much, no more
     yaw_search_deg: tuple[float, ...] = (0.0, 7.5, -7.5, 15.0, -15.0)  # extra starting headings
@@ -282,7 +277,6 @@ class LoopClosureConfig(Config):
         require(-1 <= self.min_similarity <= 1, n, "min_similarity", "must be in [-1, 1]")
         require(0 <= self.min_match <= 1, n, "min_match", "must be in [0, 1]")
         require(0 <= self.min_reach <= 1, n, "min_reach", "must be in [0, 1]")
-        require(0 <= self.older_first <= 1, n, "older_first", "must be in [0, 1] (0: off)")
         require(self.max_correction_m > 0, n, "max_correction_m", "must be > 0")
         require(self.max_correction_deg > 0, n, "max_correction_deg", "must be > 0")
         require(self.cov_floor_rot > 0 and self.cov_floor_trans > 0, n, "cov_floor_rot", "> 0")
