@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 
 from simn_sim.experiments.batch_files import machine_summary
+from simn_sim.experiments.runner import write_json
 from simn_sim.mapping.decoder import Decoder
 from simn_sim.mapping.losses import bce_sdf_loss, diagonal_fisher
 from simn_sim.slam.config import SlamConfig
@@ -95,8 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(json.dumps(doc, indent=2))
     if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps(doc, indent=2) + "\n")
+        write_json(a.out, doc)
     return 0
 
 

@@ -1,5 +1,5 @@
 """How well a single depth frame gives the heading: the Manhattan-frame yaw of its vertical
-surfaces (``simn_sim.geometry.manhattan``) against the truth, along oracle-driven episodes.
+surfaces (``simn_sim.perception.manhattan``) against the truth, along oracle-driven episodes.
 
 The office's walls are axis-aligned in the world, so through the *true* camera rotation every
 frame's wall direction is 0 modulo 90 deg and the estimate's deviation from 0 is its error (the
@@ -14,7 +14,6 @@ with an estimate, median / p90 / max absolute error, share within 0.5 deg.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -28,7 +27,8 @@ import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.env.episode_sets import EpisodeSet  # noqa: E402
 from simn_sim.experiments.batch_files import machine_summary  # noqa: E402
-from simn_sim.geometry.manhattan import frame_normals, manhattan_yaw  # noqa: E402
+from simn_sim.experiments.runner import write_json  # noqa: E402
+from simn_sim.perception.manhattan import frame_normals, manhattan_yaw  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
 
 SUPPORTS = (0.0, 0.2, 0.3)
@@ -131,8 +131,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"{100 * r['share_below_0.5deg']:.0f} %"
                 )
     if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps(doc, indent=2) + "\n")
+        write_json(a.out, doc)
     return 0
 
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from simn_sim.geometry.manhattan import frame_normals, manhattan_yaw
+from simn_sim.perception.manhattan import frame_normals, manhattan_yaw
 
 
 def _normals(wall_deg, n_wall, n_clutter, n_floor, noise_deg=0.0, seed=0):
