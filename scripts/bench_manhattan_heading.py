@@ -28,8 +28,8 @@ from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.env.episode_sets import EpisodeSet  # noqa: E402
 from simn_sim.experiments.batch_files import machine_summary  # noqa: E402
 from simn_sim.experiments.runner import write_json  # noqa: E402
-from simn_sim.perception.manhattan import frame_normals, manhattan_yaw  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
+from simn_sim.perception.manhattan import frame_normals, manhattan_yaw  # noqa: E402
 
 SUPPORTS = (0.0, 0.2, 0.3)
 
