@@ -44,7 +44,7 @@ import simn_sim  # noqa: E402,F401
 from simn_sim.agents import make_agent  # noqa: E402
 from simn_sim.config import ConfigError, json_object  # noqa: E402
 from simn_sim.env.episodes import EpisodeSet  # noqa: E402
-from simn_sim.experiments.batch_files import machine_summary
+from simn_sim.experiments.batch_files import machine_summary  # noqa: E402
 from simn_sim.paths import envs_dir  # noqa: E402
 from simn_sim.slam.config import SlamConfig  # noqa: E402
 

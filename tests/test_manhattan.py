@@ -109,3 +109,11 @@ def test_bench_manhattan_heading_reports_errors_against_the_axis_aligned_walls(t
     assert r["n"] == res["with_estimate"] and r["max"] < 0.5
     with pytest.raises(SystemExit):
         mod.main(["--episodes", "no-such-episode"])
+
+
+def test_frame_normals_rejects_depth_of_another_size():
+    from simn_sim.geometry.camera import Intrinsics
+
+    intr = Intrinsics(width=8, height=6, fx=5.0, fy=5.0, cx=3.5, cy=2.5)
+    with pytest.raises(ValueError, match="intrinsics are 8x6"):
+        frame_normals(np.ones((8, 6), np.float32), intr)

@@ -17,7 +17,7 @@ import dataclasses
 
 import numpy as np
 
-from simn_sim.geometry.camera import Intrinsics, backproject
+from simn_sim.geometry.camera import Intrinsics, pixel_rays
 from simn_sim.semantics import normals_from_organized
 
 __all__ = ["ManhattanYaw", "frame_normals", "manhattan_yaw"]
@@ -49,7 +49,13 @@ def frame_normals(
         raise ValueError(f"stride must be >= 1, got {stride}")
     if not (np.isfinite(max_depth) and max_depth > 0):
         raise ValueError(f"max_depth must be > 0, got {max_depth}")
-    P = backproject(d, intr)[::stride, ::stride].astype(np.float64)
+    if d.shape != (intr.height, intr.width):
+        raise ValueError(
+            f"depth is {d.shape[1]}x{d.shape[0]} but intrinsics are {intr.width}x{intr.height}"
+        )
+    rx, ry = pixel_rays(intr, stride)  # only the sampled pixels are back-projected
+    z = d[::stride, ::stride].astype(np.float32, copy=False)
+    P = np.stack([rx * z, ry * z, z], axis=-1).astype(np.float64)
     z = P[..., 2]
     P[~(np.isfinite(z) & (z > 0))] = np.nan
     N = normals_from_organized(P, max_jump=0.05 * stride)
