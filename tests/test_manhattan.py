@@ -117,3 +117,68 @@ def test_frame_normals_rejects_depth_of_another_size():
     intr = Intrinsics(width=8, height=6, fx=5.0, fy=5.0, cx=3.5, cy=2.5)
     with pytest.raises(ValueError, match="intrinsics are 8x6"):
         frame_normals(np.ones((8, 6), np.float32), intr)
+
+
+def _corner_depth(intr, wall_deg, cam_yaw_deg=0.0):
+    """Exact depth of a camera (optical axis horizontal, at yaw ``cam_yaw_deg`` in the floor
+    plane) inside a room whose walls run at ``wall_deg`` (modulo 90), 1.2-2.0 m away, and
+    the camera's rotation in plane coordinates (z up)."""
+    from simn_sim.geometry.camera import pixel_rays
+
+    c, s = math.cos(math.radians(cam_yaw_deg)), math.sin(math.radians(cam_yaw_deg))
+    # optical z forward = plane (c, s, 0); optical x right = (s, -c, 0); optical y down
+    R = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
+    rx, ry = pixel_rays(intr, 1)
+    rays = np.stack([rx, ry, np.ones_like(rx)], -1) @ R.T  # plane coordinates, z = 1 along axis
+    depth = np.full(rx.shape, np.inf)
+    for k, dist in enumerate((1.5, 2.0, 1.2, 1.8)):  # the four walls of a rectangle
+        a = math.radians(wall_deg + 90.0 * k)
+        n = np.array([math.cos(a), math.sin(a), 0.0])
+        t = dist / (rays @ n)  # along the ray, in units of the optical depth
+        depth = np.where((t > 0) & (t < depth), t, depth)
+    return depth.astype(np.float32), R
+
+
+def test_wall_heading_sets_a_reference_then_corrects_toward_it():
+    """:class:`WallHeading` on exact depth of a rectangular room: the first pool sets the
+    reference (the walls' direction through the camera rotation); a later pool whose rotation
+    is 1.6 deg off reads a residual of 1.6 deg and returns -gain x 1.6; 6 deg is beyond the
+    3 deg gate; a pool without enough normals gives nothing."""
+    from simn_sim.geometry.camera import Intrinsics
+    from simn_sim.perception.manhattan import WallHeading, WallHeadingConfig
+
+    intr = Intrinsics(width=160, height=120, fx=100.0, fy=100.0, cx=79.5, cy=59.5)
+    h = WallHeading(WallHeadingConfig(enabled=True, stride=2, max_depth=4.0), intr)
+    I3 = np.eye(3)
+    for yaw in (0.0, 20.0):  # two views of frame 0, anchor = first camera
+        depth, R = _corner_depth(intr, 10.0, yaw)
+        h.observe(depth, R, I3)  # the anchor is the plane's frame here
+    assert h.residual(I3) is None and h.reference_deg == pytest.approx(10.0, abs=0.05)
+
+    def turned(deg):  # the estimated rotation is `deg` off: walls read `deg` further on
+        c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    depth, R = _corner_depth(intr, 10.0, 35.0)
+    h.observe(depth, R, turned(1.6))
+    assert h.residual(turned(1.6)) == pytest.approx(-0.5 * 1.6, abs=0.03)
+    assert h.last_residual_deg == pytest.approx(1.6, abs=0.05)
+    h.observe(depth, R, turned(-6.0))
+    assert h.residual(turned(-6.0)) is None and h.n_gated == 1
+    assert h.last_residual_deg == pytest.approx(-6.0, abs=0.05)
+    # a view of the floor only: no vertical normals, no pool
+    h.observe(np.full((120, 160), 1.0, np.float32), np.diag([1.0, -1.0, -1.0]), I3)
+    assert h.residual(I3) is None
+    assert (h.n_pools, h.n_clear, h.n_corrections) == (3, 3, 1)
+
+
+def test_wall_heading_config_is_checked():
+    from simn_sim.config import ConfigError
+    from simn_sim.perception.manhattan import WallHeadingConfig
+    from simn_sim.slam import SlamConfig
+
+    for bad in ({"gain": 0.0}, {"gate_deg": 50.0}, {"min_support": 1.5}, {"stride": 0}):
+        with pytest.raises(ConfigError):
+            WallHeadingConfig(**bad)
+    with pytest.raises(ConfigError, match="heading.enabled: needs planar"):
+        SlamConfig(heading={"enabled": True})

@@ -8,19 +8,27 @@ them (modulo 90 deg). Clutter at other angles (rotated desks, boxes) only thins 
 
 Normals come from the organised point image sampled every ``stride`` pixels (a central
 difference over ``stride`` pixels: per-pixel normals of D435i depth are too noisy to locate a
-peak, docs/navigation.md "The same default on another CPU"). Not used by the agent yet.
+peak, docs/navigation.md "The same default on another CPU").
+
+:class:`WallHeading` turns it into a heading correction for the SLAM front-end
+(``SlamConfig.heading``): the vertical-surface normals of a local frame's views are pooled in
+its anchor coordinates; when the frame closes, the pool's wall direction is compared with a
+reference (the first pool whose peak is clear enough), and the next frame's anchor is turned
+toward it by ``gain`` times the residual, within ``gate_deg``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
+from simn_sim.config import Config, require
 from simn_sim.geometry.camera import Intrinsics, pixel_rays
 from simn_sim.semantics import normals_from_organized
 
-__all__ = ["ManhattanYaw", "frame_normals", "manhattan_yaw"]
+__all__ = ["ManhattanYaw", "WallHeading", "WallHeadingConfig", "frame_normals", "manhattan_yaw"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,3 +103,112 @@ def manhattan_yaw(
     d = np.angle(np.exp(1j * (a - c)))
     support = float(np.mean(np.abs(d) < np.radians(4 * support_deg)))
     return ManhattanYaw(yaw_deg=yaw, support=support, n_vertical=len(v))
+
+
+@dataclasses.dataclass(frozen=True)
+class WallHeadingConfig(Config):
+    """Heading correction from the walls (:class:`WallHeading`); off unless ``enabled``.
+
+    Each view's normals (:func:`frame_normals` with ``stride`` and ``max_depth``) nearer than
+    vertical (``|n_z| < vertical_max_nz`` in the floor plane's coordinates) join the open local
+    frame's pool, at most ``max_pool`` of them (every k-th beyond). A pool of at least
+    ``min_normals`` gives the frame's wall direction (:func:`manhattan_yaw`). The first pool
+    with ``ref_min_support`` sets the reference; a later pool with ``min_support`` whose
+    residual to it (modulo 90 deg) is within ``gate_deg`` turns the next anchor by ``-gain``
+    times the residual."""
+
+    enabled: bool = False
+    stride: int = 8
+    max_depth: float = 3.0
+    vertical_max_nz: float = 0.2
+    min_normals: int = 200
+    max_pool: int = 20000
+    ref_min_support: float = 0.4
+    min_support: float = 0.3
+    gate_deg: float = 3.0
+    gain: float = 0.5
+
+    def validate(self) -> None:
+        n = type(self).__name__
+        require(self.stride >= 1, n, "stride", f"must be >= 1, got {self.stride}")
+        for f in ("max_depth", "gate_deg"):
+            v = getattr(self, f)
+            require(math.isfinite(v) and v > 0, n, f, f"must be > 0, got {v}")
+        require(0 < self.vertical_max_nz < 1, n, "vertical_max_nz", "must be in (0, 1)")
+        require(self.min_normals >= 1, n, "min_normals", "must be >= 1")
+        require(self.max_pool >= self.min_normals, n, "max_pool", "must be >= min_normals")
+        for f in ("ref_min_support", "min_support"):
+            v = getattr(self, f)
+            require(0 <= v <= 1, n, f, f"must be in [0, 1], got {v}")
+        require(0 < self.gain <= 1, n, "gain", f"must be in (0, 1], got {self.gain}")
+        require(self.gate_deg < 45, n, "gate_deg", "must be < 45 (walls repeat every 90 deg)")
+
+
+def wrap90(deg: float) -> float:
+    """An angle modulo 90 deg, in [-45, 45)."""
+    return float((deg + 45.0) % 90.0 - 45.0)
+
+
+class WallHeading:
+    """The wall-direction pool of the open local frame and the reference it is held to.
+
+    ``observe(depth, R_anchor_cam, R_plane_anchor)`` pools a view; ``residual(R_plane_anchor)``
+    closes the pool (the frame's anchor rotation in the floor plane's coordinates, z up, as
+    it is then) and returns the correction in degrees (None: no correction), then empties it.
+    Counters: ``n_pools`` closed, ``n_clear`` with a clear peak, ``n_corrections`` applied,
+    ``n_gated`` beyond the gate; ``reference_deg`` once set.
+    """
+
+    def __init__(self, cfg: WallHeadingConfig, intr: Intrinsics) -> None:
+        cfg.validate()
+        self.cfg, self.intr = cfg, intr
+        self.reference_deg: float | None = None
+        self._pool: list[np.ndarray] = []
+        self._n = 0
+        self.n_pools = self.n_clear = self.n_corrections = self.n_gated = 0
+        self.last_residual_deg = float("nan")
+
+    def observe(self, depth: np.ndarray, R_anchor_cam: np.ndarray, R_plane_anchor: np.ndarray):
+        """Pool one view's near-vertical normals, in anchor coordinates."""
+        c = self.cfg
+        if self._n >= c.max_pool:
+            return
+        n = frame_normals(depth, self.intr, c.stride, c.max_depth) @ np.asarray(R_anchor_cam).T
+        up = n @ np.asarray(R_plane_anchor)[2]  # z of the floor plane, in anchor coordinates
+        n = n[np.abs(up) < c.vertical_max_nz]
+        if len(n) > c.max_pool - self._n:
+            n = n[:: int(math.ceil(len(n) / (c.max_pool - self._n)))]
+        if len(n):
+            self._pool.append(n)
+            self._n += len(n)
+
+    def residual(self, R_plane_anchor: np.ndarray) -> float | None:
+        """Close the pool: the yaw correction (deg, about the plane's z) for the next anchor,
+        or None (too few normals, no clear peak, no reference yet, or beyond the gate)."""
+        c = self.cfg
+        pool, self._pool, self._n = self._pool, [], 0
+        if not pool:
+            return None
+        self.n_pools += 1
+        m = manhattan_yaw(
+            np.concatenate(pool) @ np.asarray(R_plane_anchor).T,
+            vertical_max_nz=c.vertical_max_nz,
+            min_normals=c.min_normals,
+        )
+        if m is None:
+            return None
+        if self.reference_deg is None:
+            if m.support >= c.ref_min_support:
+                self.reference_deg = m.yaw_deg
+                self.n_clear += 1
+            return None
+        if m.support < c.min_support:
+            return None
+        self.n_clear += 1
+        e = wrap90(m.yaw_deg - self.reference_deg)
+        self.last_residual_deg = e
+        if abs(e) > c.gate_deg:
+            self.n_gated += 1
+            return None
+        self.n_corrections += 1
+        return -c.gain * e

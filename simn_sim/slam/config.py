@@ -20,6 +20,7 @@ from simn_sim.mapping.config import (
     TrainingConfig,
 )
 from simn_sim.perception.frame import PerceptionConfig
+from simn_sim.perception.manhattan import WallHeadingConfig
 from simn_sim.semantics import FloorClassifierConfig
 from simn_sim.tracking.localframes import FrameTriggerConfig
 from simn_sim.tracking.posegraph import PoseGraphConfig
@@ -288,6 +289,8 @@ class SlamConfig(Config):
     loop: LoopClosureConfig = dataclasses.field(default_factory=LoopClosureConfig)
     pose_graph: PoseGraphConfig = dataclasses.field(default_factory=PoseGraphConfig)
     classifier: FloorClassifierConfig = dataclasses.field(default_factory=FloorClassifierConfig)
+    # heading held to the walls' direction (modulo 90 deg) between local frames; needs planar
+    heading: WallHeadingConfig = dataclasses.field(default_factory=WallHeadingConfig)
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -359,6 +362,7 @@ class SlamConfig(Config):
         require(
             self.planar or not self.planar_registration, n, "planar_registration", "needs planar"
         )
+        require(self.planar or not self.heading.enabled, n, "heading.enabled", "needs planar")
         require(self.open_train_iters >= 1, n, "open_train_iters", "must be >= 1")
         require(self.train_iters >= 1, n, "train_iters", "must be >= 1")
         require(self.depth_sigma0 > 0, n, "depth_sigma0", "must be > 0")

@@ -46,6 +46,7 @@ import torch
 from simn_sim.geometry.camera import Intrinsics
 from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
 from simn_sim.perception.frame import Perception
+from simn_sim.perception.manhattan import WallHeading
 from simn_sim.semantics import OBSTACLE
 from simn_sim.slam.config import SlamConfig
 from simn_sim.slam.frames import LocalFrames
@@ -129,6 +130,8 @@ class SimnSlam:
         self.tracker = Tracker(cfg, self.frames, self.rng, self.T_base_cam)
         self.revisits = Revisits(cfg, self.frames, self.tracker)
         self.trigger = FrameTrigger(cfg.trigger)
+        # planar + heading.enabled: the walls' direction holds the heading (WallHeading)
+        self.heading = WallHeading(cfg.heading, intrinsics) if cfg.heading.enabled else None
         # the training chunk of a frame, joined by the next frame before it tracks
         # (train_latency 0) or after (1); on a worker thread with train_async, else inline at
         # the join (no worker at all for latency 0 without train_async: trained in the step)
@@ -275,9 +278,13 @@ class SimnSlam:
             old = frames.current_id
             frames.current.frame.t_end = tr.hist[-1][0]
             frames.close(old)
+            # the wall heading of the closed frame's views turns the new anchor (and with it
+            # the tracker's history: C is a change of world coordinates, not a motion)
+            C = self._heading_correction(old, T_world_cam)
+            T_world_cam = C @ T_world_cam
             fid = frames.open(T_world_cam, t)
             new_frame = True
-            tr.reanchor(inv_T(frames.topo.anchor(fid)) @ frames.topo.anchor(old))
+            tr.reanchor(inv_T(frames.topo.anchor(fid)) @ C @ frames.topo.anchor(old))
             T_anchor_cam = np.eye(4)
         elif not first:
             revisit_fid = self.revisits.step()
@@ -303,6 +310,10 @@ class SimnSlam:
                 frames.restamp_observed(frames.current_id)
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
+        if self.heading is not None:
+            self.heading.observe(
+                depth, T_anchor_cam[:3, :3], self._R_plane_anchor(frames.current_id)
+            )
         st.frame.t_end = t
         st.frame.n_observations += 1
 
@@ -364,6 +375,24 @@ class SimnSlam:
         flat = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel))
         return self._T_plane @ flat @ self.T_base_cam
 
+    def _R_plane_anchor(self, fid: int) -> np.ndarray:
+        """Rotation of frame ``fid``'s anchor in the first base's plane coordinates (z up)."""
+        return (inv_T(self._T_plane) @ self.frames.topo.anchor(fid))[:3, :3]
+
+    def _heading_correction(self, closed: int, T_world_cam: np.ndarray) -> np.ndarray:
+        """(4, 4) change of world coordinates that turns ``T_world_cam``'s base about its own
+        vertical by the wall-heading correction of frame ``closed``'s views (identity without
+        one; ``heading``)."""
+        if self.heading is None:
+            return np.eye(4)
+        delta = self.heading.residual(self._R_plane_anchor(closed))
+        if delta is None:
+            return np.eye(4)
+        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
+        turned = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel) + np.radians(delta))
+        T_new = self._T_plane @ turned @ self.T_base_cam
+        return orthonormalize(T_new @ inv_T(T_world_cam))
+
     def _graph_moved(self) -> bool:
         """``planar``: whether a pose-graph run moved the (projected) anchors since the last
         call, also one whose robust loss then rejected the new arc; the anchors' version moves
@@ -415,7 +444,7 @@ class SimnSlam:
         return "learned" if self.cfg.track_sdf == "implicit" else "points"
 
     def stats(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "tracking_map": self.tracking_map,
             "frames": self.n_frames,
             "local_frames": len(self.frames),
@@ -427,6 +456,16 @@ class SimnSlam:
             "dynamic_points": self.n_dynamic_points,
             "anchors_version": self.anchors_version,
         }
+        if self.heading is not None:
+            h = self.heading
+            out["heading"] = {
+                "reference_deg": h.reference_deg,
+                "pools": h.n_pools,
+                "clear": h.n_clear,
+                "corrections": h.n_corrections,
+                "gated": h.n_gated,
+            }
+        return out
 
     def debug(self) -> dict[str, Any]:
         """Data for a rerun recording (:class:`simn_sim.viz.RerunRecorder`), in the SLAM world

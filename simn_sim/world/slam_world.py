@@ -77,7 +77,7 @@ class SlamWorld:
 
     def counters(self) -> dict[str, int]:
         s = self.slam.stats()
-        return {
+        out = {
             "track_failures": s["track_failures"],
             "revisits": s["revisits_accepted"],
             "revisit_checks_dropped": s["revisit_checks_dropped"],
@@ -86,6 +86,10 @@ class SlamWorld:
             "carved_points": s["carved_points"],
             "dynamic_points": s["dynamic_points"],
         }
+        if "heading" in s:  # the wall-heading correction (SlamConfig.heading), when on
+            out["heading_corrections"] = s["heading"]["corrections"]
+            out["heading_gated"] = s["heading"]["gated"]
+        return out
 
     def revisit_events(self) -> dict[str, Any]:
         """Each local frame's opening time (s, by frame id), the accepted revisits as
