@@ -142,7 +142,7 @@ def _corner_depth(intr, wall_deg, cam_yaw_deg=0.0):
 def test_wall_heading_sets_a_reference_then_corrects_toward_it():
     """:class:`WallHeading` on exact depth of a rectangular room: the first pool sets the
     reference (the walls' direction through the camera rotation); a later pool whose rotation
-    is 1.6 deg off reads a residual of 1.6 deg and returns -gain x 1.6; 6 deg is beyond the
+    is 1.6 deg off returns a residual of 1.6 deg; 6 deg is beyond the
     3 deg gate; a pool without enough normals gives nothing."""
     from simn_sim.geometry.camera import Intrinsics
     from simn_sim.perception.manhattan import WallHeading, WallHeadingConfig
@@ -161,7 +161,7 @@ def test_wall_heading_sets_a_reference_then_corrects_toward_it():
 
     depth, R = _corner_depth(intr, 10.0, 35.0)
     h.observe(depth, R, turned(1.6))
-    assert h.residual(turned(1.6)) == pytest.approx(-0.5 * 1.6, abs=0.03)
+    assert h.residual(turned(1.6)) == pytest.approx(1.6, abs=0.05)
     assert h.last_residual_deg == pytest.approx(1.6, abs=0.05)
     h.observe(depth, R, turned(-6.0))
     assert h.residual(turned(-6.0)) is None and h.n_gated == 1
@@ -177,7 +177,8 @@ def test_wall_heading_config_is_checked():
     from simn_sim.perception.manhattan import WallHeadingConfig
     from simn_sim.slam import SlamConfig
 
-    for bad in ({"gain": 0.0}, {"gate_deg": 50.0}, {"min_support": 1.5}, {"stride": 0}):
+    bad_values = ({"gain": 0.0}, {"gate_deg": 50.0}, {"min_support": 1.5}, {"stride": 0})
+    for bad in bad_values + ({"prior_sigma_deg": -1.0},):
         with pytest.raises(ConfigError):
             WallHeadingConfig(**bad)
     with pytest.raises(ConfigError, match="heading.enabled: needs planar"):

@@ -459,3 +459,34 @@ def test_drift_budget_grows_with_the_arc_path_between_the_frames() -> None:
     assert res.accepted in (0, 1), [a.reason for a in res.attempts]
     # a closed loop is a short path: frames joined by it get the floor's budget
     assert drift_budget(topo, 0, cur, cfg) < 0.05 + 0.03 * 0.5
+
+
+def test_unary_heading_prior_shares_the_turn_with_the_arcs() -> None:
+    """A chain 0 -> 1 -> 2 (z-up anchors, 1 m apart along x; arcs of rotation sigma s) and a
+    prior on anchor 2 that its yaw is 3 deg less, information about z only, sigma s: least
+    squares puts two thirds of the turn on anchor 2 and one third on anchor 1 (two arcs
+    against one prior), and the prior does not pull any position of its own."""
+    from simn_sim.geometry.se3 import yaw_of
+
+    s = np.radians(1.0)
+    A = {k: planar_T(float(k), 0.0, 0.0) for k in range(3)}
+    C = covariance_from_sigmas(s, 1e-4)
+    arcs = [(0, 1, inv_T(A[0]) @ A[1], C), (1, 2, inv_T(A[1]) @ A[2], C)]
+    info = np.eye(6) * 1e-9
+    info[2, 2] += 1.0 / s**2
+    prior = planar_T(2.0, 0.5, np.radians(-3.0))  # its position far off: no information
+    res = optimize_pose_graph(A, arcs, (), unary=[(2, prior, info)])
+    yaw = {k: np.degrees(yaw_of(T)) for k, T in res.anchors.items()}
+    assert yaw[0] == pytest.approx(0.0, abs=1e-3)
+    assert yaw[1] == pytest.approx(-1.0, abs=0.01)
+    assert yaw[2] == pytest.approx(-2.0, abs=0.01)
+    # anchor 2 moved only as the turned chain carries it (1 m from anchor 1, turned 1 deg)
+    np.testing.assert_allclose(
+        res.anchors[2][:2, 3], [1.0 + np.cos(np.radians(-1.0)), np.sin(np.radians(-1.0))], atol=1e-3
+    )
+    with pytest.raises(ValueError, match="not an anchor"):
+        optimize_pose_graph(A, arcs, (), unary=[(7, prior, info)])
+    with pytest.raises(ValueError, match="positive definite"):
+        optimize_pose_graph(A, arcs, (), unary=[(2, prior, np.zeros((6, 6)))])
+    with pytest.raises(ValueError, match=r"\(6, 6\)"):
+        optimize_pose_graph(A, arcs, (), unary=[(2, prior, np.eye(3))])

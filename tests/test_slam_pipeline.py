@@ -465,8 +465,8 @@ def test_points_in_dynamic_space_stay_out_of_registration_and_its_maps():
 
 
 def test_wall_heading_turns_the_new_anchor_and_keeps_the_tracked_motion(desk):
-    """``heading``: a correction of +1.5 deg at the first frame change turns the new anchor's
-    base by exactly 1.5 deg about its own vertical (x, y kept) against the same run without
+    """``heading``: a residual of -3 deg (gain 0.5) at the first frame change turns the new
+    anchor's base by exactly 1.5 deg about its own vertical (x, y kept) against the same run without
     it, and the tracker's history is re-expressed, so the tracked motion into the new frame is
     unchanged. With its real residuals on ideal depth, a reference is set, no pool is beyond
     the gate and the trajectory keeps its noise-free accuracy."""
@@ -490,7 +490,7 @@ def test_wall_heading_turns_the_new_anchor_and_keeps_the_tracked_motion(desk):
 
     s0, o0, inc0 = first_change(base_cfg)
     cfg = base_cfg.replace(heading=base_cfg.heading.replace(enabled=True))
-    s1, o1, inc1 = first_change(cfg, fixed=1.5)
+    s1, o1, inc1 = first_change(cfg, fixed=-3.0)
     plane = s0._T_plane
     b0 = inv_T(plane) @ o0.T_world_cam @ inv_T(T_bc)
     b1 = inv_T(plane) @ o1.T_world_cam @ inv_T(T_bc)
@@ -503,8 +503,15 @@ def test_wall_heading_turns_the_new_anchor_and_keeps_the_tracked_motion(desk):
     arc0 = inv_T(s0.topo.anchor(0)) @ s0.topo.anchor(1)
     assert not np.allclose(arc, arc0, atol=1e-4)
 
+    cfg = cfg.replace(heading=cfg.heading.replace(prior_sigma_deg=1.0))
     slam, outs, gt = _run(desk, cfg)
     h = slam.stats()["heading"]
     assert h["reference_deg"] is not None and h["pools"] >= 2 and h["gated"] == 0, h
+    # each accepted residual put a heading prior on its closed frame for the pose graph
+    assert h["priors"] == h["corrections"] >= 1, h
+    for T, info in slam.topo.anchor_priors.values():
+        assert np.linalg.eigvalsh(info).max() > 1e6 * np.linalg.eigvalsh(info).min()
+        up = T[:3, :3].T @ slam._T_plane[:3, 2]  # the plane's vertical in the anchor's axes
+        assert up @ info[:3, :3] @ up == pytest.approx(np.linalg.eigvalsh(info).max(), rel=1e-6)
     assert abs(slam.heading.last_residual_deg) < 0.5 or np.isnan(slam.heading.last_residual_deg)
     assert ate_rpe(slam.trajectory(), gt)["ate_rmse_m"] < 0.01

@@ -115,7 +115,9 @@ class WallHeadingConfig(Config):
     ``min_normals`` gives the frame's wall direction (:func:`manhattan_yaw`). The first pool
     with ``ref_min_support`` sets the reference; a later pool with ``min_support`` whose
     residual to it (modulo 90 deg) is within ``gate_deg`` turns the next anchor by ``-gain``
-    times the residual."""
+    times the residual and, with ``prior_sigma_deg`` > 0, puts a heading prior (the residual
+    taken out, that sigma) on the closed frame's anchor for the pose graph, so that a later
+    loop closure against that frame does not turn the correction back."""
 
     enabled: bool = False
     stride: int = 8
@@ -127,6 +129,7 @@ class WallHeadingConfig(Config):
     min_support: float = 0.3
     gate_deg: float = 3.0
     gain: float = 0.5
+    prior_sigma_deg: float = 0.0
 
     def validate(self) -> None:
         n = type(self).__name__
@@ -141,6 +144,8 @@ class WallHeadingConfig(Config):
             v = getattr(self, f)
             require(0 <= v <= 1, n, f, f"must be in [0, 1], got {v}")
         require(0 < self.gain <= 1, n, "gain", f"must be in (0, 1], got {self.gain}")
+        v = self.prior_sigma_deg
+        require(math.isfinite(v) and v >= 0, n, "prior_sigma_deg", f"must be >= 0, got {v}")
         require(self.gate_deg < 45, n, "gate_deg", "must be < 45 (walls repeat every 90 deg)")
 
 
@@ -154,7 +159,8 @@ class WallHeading:
 
     ``observe(depth, R_anchor_cam, R_plane_anchor)`` pools a view; ``residual(R_plane_anchor)``
     closes the pool (the frame's anchor rotation in the floor plane's coordinates, z up, as
-    it is then) and returns the correction in degrees (None: no correction), then empties it.
+    it is then) and returns its residual to the reference in degrees (None: none usable), then
+    empties it.
     Counters: ``n_pools`` closed, ``n_clear`` with a clear peak, ``n_corrections`` applied,
     ``n_gated`` beyond the gate; ``reference_deg`` once set.
     """
@@ -183,8 +189,9 @@ class WallHeading:
             self._n += len(n)
 
     def residual(self, R_plane_anchor: np.ndarray) -> float | None:
-        """Close the pool: the yaw correction (deg, about the plane's z) for the next anchor,
-        or None (too few normals, no clear peak, no reference yet, or beyond the gate)."""
+        """Close the pool: its heading residual (deg, about the plane's z; the estimate is
+        that much too far left), or None (too few normals, no clear peak, no reference yet,
+        or beyond the gate)."""
         c = self.cfg
         pool, self._pool, self._n = self._pool, [], 0
         if not pool:
@@ -211,4 +218,4 @@ class WallHeading:
             self.n_gated += 1
             return None
         self.n_corrections += 1
-        return -c.gain * e
+        return e

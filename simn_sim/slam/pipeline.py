@@ -385,13 +385,26 @@ class SimnSlam:
         one; ``heading``)."""
         if self.heading is None:
             return np.eye(4)
-        delta = self.heading.residual(self._R_plane_anchor(closed))
-        if delta is None:
+        e = self.heading.residual(self._R_plane_anchor(closed))
+        if e is None:
             return np.eye(4)
-        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
-        turned = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel) + np.radians(delta))
-        T_new = self._T_plane @ turned @ self.T_base_cam
+        hc = self.cfg.heading
+        if hc.prior_sigma_deg > 0:
+            # the closed frame's anchor, its heading residual taken out, for the pose graph:
+            # information only about the floor plane's vertical (in the anchor's own axes)
+            A = self.frames.topo.anchor(closed)
+            a = A[:3, :3].T @ self._T_plane[:3, 2]
+            info = np.eye(6) * 1e-6
+            info[:3, :3] += np.outer(a, a) / np.radians(hc.prior_sigma_deg) ** 2
+            self.frames.topo.anchor_priors[closed] = (self._turn(A, -e), info)
+        T_new = self._turn(T_world_cam, -hc.gain * e)
         return orthonormalize(T_new @ inv_T(T_world_cam))
+
+    def _turn(self, T_world_cam: np.ndarray, deg: float) -> np.ndarray:
+        """``T_world_cam`` with its base turned by ``deg`` about its own vertical (planar)."""
+        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
+        turned = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel) + np.radians(deg))
+        return self._T_plane @ turned @ self.T_base_cam
 
     def _graph_moved(self) -> bool:
         """``planar``: whether a pose-graph run moved the (projected) anchors since the last
@@ -464,6 +477,7 @@ class SimnSlam:
                 "clear": h.n_clear,
                 "corrections": h.n_corrections,
                 "gated": h.n_gated,
+                "priors": len(self.frames.topo.anchor_priors),
             }
         return out
 

@@ -133,10 +133,14 @@ def optimize_pose_graph(
     loop_arcs: Sequence[Arc] = (),
     cfg: PoseGraphConfig | None = None,
     fixed: int | None = None,
+    unary: Sequence[tuple[int, np.ndarray, np.ndarray]] = (),
 ) -> PoseGraphResult:
     """Optimise ``anchors`` (id -> T_world_anchor, the initial guess) given the arcs.
 
     Every anchor must be connected to ``fixed`` (default: the smallest id) through arcs.
+    ``unary``: absolute priors ``(id, T_world_anchor, information)``, the (6, 6) information
+    in gtsam's tangent order (rotation, translation; the anchor's own axes), e.g. a heading
+    measured from the walls that constrains one rotation direction only.
     """
     cfg = cfg or PoseGraphConfig()
     if not anchors:
@@ -160,6 +164,22 @@ def optimize_pose_graph(
         np.array([cfg.prior_sigma_rot] * 3 + [cfg.prior_sigma_trans] * 3)
     )
     graph.add(gtsam.PriorFactorPose3(fixed, gtsam.Pose3(A[fixed]), prior))
+    for k, T, info in unary:
+        if int(k) not in A:
+            raise ValueError(f"unary prior on {k}, which is not an anchor")
+        info = np.asarray(info, dtype=np.float64)
+        if info.shape != (6, 6) or not np.isfinite(info).all():
+            raise ValueError(
+                f"unary prior {k}: information must be a finite (6, 6), got {info.shape}"
+            )
+        if not np.allclose(info, info.T) or np.linalg.eigvalsh(info).min() <= 0:
+            raise ValueError(f"unary prior {k}: information must be symmetric positive definite")
+        T = check_pose(T, f"unary prior {k}")
+        graph.add(
+            gtsam.PriorFactorPose3(
+                int(k), gtsam.Pose3(T), gtsam.noiseModel.Gaussian.Information(info)
+            )
+        )
     for i, j, T, C in odo:
         graph.add(gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(T), _noise(C, "none", 1.0)))
     n_known = graph.size()

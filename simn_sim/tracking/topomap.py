@@ -65,6 +65,8 @@ class TopoMap:
         self.n_optimized = 0  # pose-graph runs so far (each may move every anchor)
         # applied to every optimised anchor before it is set (e.g. SimnSlam's floor plane)
         self.anchor_constraint: Callable[[np.ndarray], np.ndarray] | None = None
+        # absolute priors on anchors for the pose graph: id -> (T_world_anchor, (6, 6) info)
+        self.anchor_priors: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ nodes
     def add_frame(self, frame: LocalFrame, descriptor: FrameDescriptor | None = None) -> int:
@@ -214,7 +216,8 @@ class TopoMap:
         anchors = {k: self.anchor(k) for k in comp}
         odom = [a for a in self.arcs("odom") if a[0] in comp]
         loops = [a for a in self.arcs("loop") if a[0] in comp]
-        res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root)
+        unary = [(k, T, info) for k, (T, info) in self.anchor_priors.items() if k in comp]
+        res = optimize_pose_graph(anchors, odom, loops, cfg, fixed=root, unary=unary)
         self.n_optimized += 1
         for k, T in res.anchors.items():
             c = self.anchor_constraint
