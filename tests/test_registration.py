@@ -370,3 +370,32 @@ def test_planar_registration_moves_only_on_the_floor_plane(points: np.ndarray) -
     for bad in ([0.0, 0.0, 2.0], [np.nan, 0.0, 1.0], [0.0, 1.0]):
         with pytest.raises(ValueError, match="up must be a finite unit 3-vector"):
             register(points, SCENE.sdf_and_grad, T_TRUE, up=bad)
+
+
+def test_depth_noise_weights_lower_the_error_under_stereo_noise() -> None:
+    """Depth noise that grows with z^2 along each ray (the D435i's stereo model at 320x240:
+    sigma = 0.0052 z^2 m) on a view 1.3-3.6 m deep: the slam front-end's inverse-variance
+    weights (``depth_noise_weights``, floor 1 cm) register closer to the true pose than equal
+    weights, over 8 draws (measured: mean 3.76 -> 2.56 mm, 0.129 -> 0.090 deg)."""
+    from simn_sim.slam.track import depth_noise_weights
+
+    T = look_at(np.array([0.3, 0.0, 1.0]), np.array([1.8, 1.2, 0.4]))
+    k = 0.0052
+    err = {"equal": [], "weighted": []}
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        P = render_points(SCENE, T, 4000, rng).astype(np.float64)
+        z = P[:, 2]
+        noisy = (P * (1.0 + rng.normal(size=len(z)) * k * z)[:, None]).astype(np.float32)
+        w = depth_noise_weights(z, 0.01, k)
+        assert w.max() <= 1.0 and w.min() > 0.0
+        T0 = T @ _perturbation(rng, 2.0, 0.02)
+        for name, weights in (("equal", None), ("weighted", w)):
+            res = register(noisy, SCENE.sdf_and_grad, T0, weights=weights)
+            assert res.success, res.reason
+            et, er = pose_error(res.pose, T)
+            err[name].append((et, np.degrees(er)))
+    eq, wt = np.mean(err["equal"], axis=0), np.mean(err["weighted"], axis=0)
+    assert wt[0] < 0.8 * eq[0] and wt[1] < 0.8 * eq[1], (eq, wt)
+    with pytest.raises(ValueError, match="sigma0"):
+        depth_noise_weights(np.ones(3), 0.0, k)

@@ -46,6 +46,16 @@ def _info(sigma_rot: float, sigma_trans: float) -> np.ndarray:
     return np.diag([1 / sigma_rot**2] * 3 + [1 / sigma_trans**2] * 3)
 
 
+def depth_noise_weights(z: np.ndarray, sigma0: float, per_m2: float) -> np.ndarray:
+    """Registration weights of points at depths ``z`` (m): the inverse variance of
+    sigma(z) = ``sigma0`` + ``per_m2`` z^2 (stereo depth error grows with z^2; ``sigma0`` the
+    error floor of the map and the near range) relative to a point at zero depth, in (0, 1]."""
+    if sigma0 <= 0 or per_m2 < 0:
+        raise ValueError(f"need sigma0 > 0 and per_m2 >= 0, got {sigma0}, {per_m2}")
+    z = np.asarray(z, np.float64)
+    return (sigma0 / (sigma0 + per_m2 * z**2)) ** 2
+
+
 class Tracker:
     """Pose prediction and frame-to-local-frame registration (see the module docstring)."""
 
@@ -138,8 +148,7 @@ class Tracker:
         k = self.cfg.depth_sigma_per_m2
         if k <= 0:
             return None
-        s0 = self.cfg.depth_sigma0
-        return (s0 / (s0 + k * pts[:, 2].astype(np.float64) ** 2)) ** 2
+        return depth_noise_weights(pts[:, 2], self.cfg.depth_sigma0, k)
 
     # ---- the SDF registered against ----------------------------------------------------------
     @property
