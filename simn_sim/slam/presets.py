@@ -95,7 +95,7 @@ def learned_tracking_preset(**changes: Any) -> SlamConfig:
     against the frame's surface store (``revisit_sdf: points``, as the closed-loop agent): on
     TUM fr1/rpy the learned SDF's checks accepted 1 revisit (ATE 3.22 cm), the store's 4
     (2.11 cm; docs/slam.md). The preset ``simn-sim slam`` starts from; its ATE against the
-    targets, sequence by sequence, is in docs/slam.md (missed on 7 of 12 at the last run,
+    targets, sequence by sequence, is in docs/slam.md (met on 7 of 12 at the last run,
     2026-12-07)."""
     d = SlamConfig().to_dict()
     # the gradient-norm validity floor on the learned map: 0.5 made points flip between
