@@ -37,6 +37,16 @@ def yaw_of(T: np.ndarray) -> float:
     return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
+def on_plane(
+    T_plane: np.ndarray, T_world_cam: np.ndarray, T_base_cam: np.ndarray, dyaw: float = 0.0
+) -> np.ndarray:
+    """``T_world_cam`` with its base projected onto the plane of ``T_plane`` (the base's z,
+    roll and pitch relative to ``T_plane`` set to 0, its x, y and yaw kept) and turned by
+    ``dyaw`` rad about the plane's vertical."""
+    rel = inv_T(T_plane) @ T_world_cam @ inv_T(T_base_cam)
+    return T_plane @ planar_T(rel[0, 3], rel[1, 3], yaw_of(rel) + dyaw) @ T_base_cam
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 

@@ -44,7 +44,7 @@ import numpy as np
 import torch
 
 from simn_sim.geometry.camera import Intrinsics
-from simn_sim.geometry.se3 import inv_T, orthonormalize, planar_T, transform_points, yaw_of
+from simn_sim.geometry.se3 import inv_T, on_plane, orthonormalize, transform_points
 from simn_sim.perception.frame import Perception
 from simn_sim.perception.manhattan import WallHeading
 from simn_sim.semantics import OBSTACLE
@@ -311,9 +311,8 @@ class SimnSlam:
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
         if self.heading is not None:
-            self.heading.observe(
-                depth, T_anchor_cam[:3, :3], self._R_plane_anchor(frames.current_id)
-            )
+            R = (inv_T(self._T_plane) @ frames.topo.anchor(frames.current_id))[:3, :3]
+            self.heading.observe(depth, T_anchor_cam[:3, :3], R)  # R: anchor in plane axes
         st.frame.t_end = t
         st.frame.n_observations += 1
 
@@ -371,13 +370,7 @@ class SimnSlam:
         x, y and yaw kept); unchanged without ``planar``."""
         if self._T_plane is None:
             return T_world_cam
-        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
-        flat = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel))
-        return self._T_plane @ flat @ self.T_base_cam
-
-    def _R_plane_anchor(self, fid: int) -> np.ndarray:
-        """Rotation of frame ``fid``'s anchor in the first base's plane coordinates (z up)."""
-        return (inv_T(self._T_plane) @ self.frames.topo.anchor(fid))[:3, :3]
+        return on_plane(self._T_plane, T_world_cam, self.T_base_cam)
 
     def _heading_correction(self, closed: int, T_world_cam: np.ndarray) -> np.ndarray:
         """(4, 4) change of world coordinates that turns ``T_world_cam``'s base about its own
@@ -385,26 +378,21 @@ class SimnSlam:
         one; ``heading``)."""
         if self.heading is None:
             return np.eye(4)
-        e = self.heading.residual(self._R_plane_anchor(closed))
+        A = self.frames.topo.anchor(closed)
+        e = self.heading.residual((inv_T(self._T_plane) @ A)[:3, :3])  # anchor in plane axes
         if e is None:
             return np.eye(4)
         hc = self.cfg.heading
         if hc.prior_sigma_deg > 0:
             # the closed frame's anchor, its heading residual taken out, for the pose graph:
             # information only about the floor plane's vertical (in the anchor's own axes)
-            A = self.frames.topo.anchor(closed)
             a = A[:3, :3].T @ self._T_plane[:3, 2]
             info = np.eye(6) * 1e-6
             info[:3, :3] += np.outer(a, a) / np.radians(hc.prior_sigma_deg) ** 2
-            self.frames.topo.anchor_priors[closed] = (self._turn(A, -e), info)
-        T_new = self._turn(T_world_cam, -hc.gain * e)
+            A_fixed = on_plane(self._T_plane, A, self.T_base_cam, np.radians(-e))
+            self.frames.topo.anchor_priors[closed] = (A_fixed, info)
+        T_new = on_plane(self._T_plane, T_world_cam, self.T_base_cam, np.radians(-hc.gain * e))
         return orthonormalize(T_new @ inv_T(T_world_cam))
-
-    def _turn(self, T_world_cam: np.ndarray, deg: float) -> np.ndarray:
-        """``T_world_cam`` with its base turned by ``deg`` about its own vertical (planar)."""
-        rel = inv_T(self._T_plane) @ T_world_cam @ inv_T(self.T_base_cam)
-        turned = planar_T(rel[0, 3], rel[1, 3], yaw_of(rel) + np.radians(deg))
-        return self._T_plane @ turned @ self.T_base_cam
 
     def _graph_moved(self) -> bool:
         """``planar``: whether a pose-graph run moved the (projected) anchors since the last
