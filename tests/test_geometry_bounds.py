@@ -40,3 +40,17 @@ def test_finite_rows_equals_isfinite_all_over_the_last_axis():
         got = finite_rows(x)
         np.testing.assert_array_equal(got, np.isfinite(x).all(axis=-1))
         assert got.any() and not got.all()
+
+
+def test_on_plane_keeps_x_y_yaw_and_drops_the_rest() -> None:
+    """``se3.on_plane``: a base 4 cm above a tilted plane, rolled and pitched, lands on the
+    plane with its in-plane position and yaw kept; ``dyaw`` adds to the yaw exactly."""
+    from simn_sim.geometry.se3 import inv_T, make_T, on_plane, planar_T, so3_exp, yaw_of
+
+    T_plane = make_T(so3_exp(np.array([0.02, -0.01, 0.7])), np.array([1.0, -2.0, 0.1]))
+    T_base_cam = make_T(so3_exp(np.array([-1.9, 0.0, -1.5])), np.array([0.1, 0.0, 1.0]))
+    rel = make_T(so3_exp(np.array([0.05, -0.03, 0.4])), np.array([2.0, 3.0, 0.04]))
+    T_world_cam = T_plane @ rel @ T_base_cam
+    for dyaw in (0.0, 0.3):
+        out = inv_T(T_plane) @ on_plane(T_plane, T_world_cam, T_base_cam, dyaw) @ inv_T(T_base_cam)
+        assert np.allclose(out, planar_T(2.0, 3.0, yaw_of(rel) + dyaw), atol=1e-12)
