@@ -311,8 +311,8 @@ class SimnSlam:
         if self.cfg.stores.carve:
             frames.carve(frame, T_world_cam)
         if self.heading is not None:
-            R = (inv_T(self._T_plane) @ frames.topo.anchor(frames.current_id))[:3, :3]
-            self.heading.observe(depth, T_anchor_cam[:3, :3], R)  # R: anchor in plane axes
+            R = self._R_plane_anchor(frames.current_id)
+            self.heading.observe(depth, T_anchor_cam[:3, :3], R)
         st.frame.t_end = t
         st.frame.n_observations += 1
 
@@ -368,9 +368,12 @@ class SimnSlam:
         """``T_world_cam`` with its base projected onto the first frame's base plane
         (``planar``: z, roll and pitch of the base relative to the first frame's base set to 0,
         x, y and yaw kept); unchanged without ``planar``."""
-        if self._T_plane is None:
-            return T_world_cam
-        return on_plane(self._T_plane, T_world_cam, self.T_base_cam)
+        T_plane = self._T_plane
+        return T_world_cam if T_plane is None else on_plane(T_plane, T_world_cam, self.T_base_cam)
+
+    def _R_plane_anchor(self, fid: int) -> np.ndarray:
+        """Rotation of frame ``fid``'s anchor in the first base's plane coordinates (z up)."""
+        return (inv_T(self._T_plane) @ self.frames.topo.anchor(fid))[:3, :3]
 
     def _heading_correction(self, closed: int, T_world_cam: np.ndarray) -> np.ndarray:
         """(4, 4) change of world coordinates that turns ``T_world_cam``'s base about its own
@@ -378,14 +381,14 @@ class SimnSlam:
         one; ``heading``)."""
         if self.heading is None:
             return np.eye(4)
-        A = self.frames.topo.anchor(closed)
-        e = self.heading.residual((inv_T(self._T_plane) @ A)[:3, :3])  # anchor in plane axes
+        e = self.heading.residual(self._R_plane_anchor(closed))
         if e is None:
             return np.eye(4)
         hc = self.cfg.heading
         if hc.prior_sigma_deg > 0:
             # the closed frame's anchor, its heading residual taken out, for the pose graph:
             # information only about the floor plane's vertical (in the anchor's own axes)
+            A = self.frames.topo.anchor(closed)
             a = A[:3, :3].T @ self._T_plane[:3, 2]
             info = np.eye(6) * 1e-6
             info[:3, :3] += np.outer(a, a) / np.radians(hc.prior_sigma_deg) ** 2

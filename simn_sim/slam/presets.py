@@ -117,8 +117,9 @@ def learned_tracking_preset(**changes: Any) -> SlamConfig:
         # registration weights by range: the inverse variance of sigma(z) = 1 cm + 0.0052 z^2
         # (the D435i's stereo error at the 320x240 stream's focal length over a 1 cm floor;
         # the shape alone matters: sigma doubles at 1.39 m). Against equal weights, ATE over
-        # the 12 simulated sequences 2.56 -> 1.50 cm mean, 10.75 -> 2.48 cm worst, targets
-        # met on 7 against 5; TUM fr1/rpy 2.11 -> 1.16 cm (docs/slam.md)
+        # the 12 simulated sequences 2.56 -> 1.50 cm mean, 10.75 -> 2.94 cm worst, targets
+        # met on 7 against 5; TUM fr1/rpy 2.11 -> 1.16 cm. Worse on 5 of the 8 sequences with
+        # the wheel-odometry prior, and in the agent, which keeps equal weights (docs/slam.md)
         depth_sigma_per_m2=0.0052,
         depth_sigma0=0.01,
     )
